@@ -1,0 +1,7 @@
+"""BRDF tables: streaming binning into isotropic (θi, θr, Δφ) and MERL half/difference grids."""
+
+from acquisition.tables.accumulator import BinAccumulator
+from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
+from acquisition.tables.isotropic import IsotropicTable
+
+__all__ = ["BinAccumulator", "IsotropicTable", "fold_delta_phi", "wrap_delta_phi"]

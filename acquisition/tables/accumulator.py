@@ -1,0 +1,166 @@
+"""Streaming per-bin statistics: count, sum and sum of squares per channel.
+
+A session never holds all its samples: each batch is reduced into the three running arrays and
+then dropped. Accumulation is a sum, so the result is the same (up to float rounding) whatever
+the batch order or split, and two accumulators merge by adding their arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drivers.errors import ConfigError
+
+DROP_OUT_OF_RANGE = -1
+"""Flat index marking a sample outside the table (dropped, counted in ``n_dropped_range``)."""
+DROP_NAN = -2
+"""Flat index marking a sample with a NaN coordinate (dropped, counted in ``n_dropped_nan``)."""
+
+
+class BinAccumulator:
+    """Count, Σx and Σx² per bin and channel over a table of ``shape`` bins.
+
+    Parameters
+    ----------
+    shape
+        Bin grid shape, e.g. ``(90, 90, 180)``.
+    channels
+        Values per sample (3 for RGB).
+
+    Notes
+    -----
+    Samples are added by flat (C-order) bin index. A negative index drops the sample:
+    :data:`DROP_NAN` counts it as NaN, any other negative index as out of range. Samples whose
+    value is not finite (NaN or ±inf in any channel) are dropped as NaN.
+    """
+
+    def __init__(self, shape: tuple[int, ...], channels: int = 3) -> None:
+        self.shape = tuple(int(s) for s in shape)
+        self.channels = int(channels)
+        self.n_bins = math.prod(self.shape)
+        self._count = np.zeros(self.n_bins, dtype=np.int64)
+        # (channels, bins): each channel's bincount result adds to a contiguous row.
+        self._sum = np.zeros((self.channels, self.n_bins), dtype=np.float64)
+        self._sumsq = np.zeros((self.channels, self.n_bins), dtype=np.float64)
+        self.n_dropped_nan = 0
+        self.n_dropped_range = 0
+
+    # ------------------------------------------------------------------ accumulation
+    def add_flat(self, flat_index: np.ndarray, values: np.ndarray) -> int:
+        """Add samples by flat bin index; returns how many were kept.
+
+        Parameters
+        ----------
+        flat_index
+            (N,) integer bin indices in C order; negative entries drop the sample.
+        values
+            (N, channels) sample values.
+        """
+        idx = np.asarray(flat_index).reshape(-1)
+        vals = np.asarray(values, dtype=np.float64).reshape(idx.size, self.channels)
+        if idx.size == 0:
+            return 0
+        if idx.dtype != np.intp:
+            idx = idx.astype(np.intp)
+        finite = np.isfinite(vals).all(axis=1)
+        in_table = (idx >= 0) & (idx < self.n_bins)
+        keep = finite & in_table
+        n_keep = int(np.count_nonzero(keep))
+        if n_keep != idx.size:
+            nan = ~finite | (idx == DROP_NAN)
+            self.n_dropped_nan += int(np.count_nonzero(nan))
+            self.n_dropped_range += int(np.count_nonzero(~nan & ~in_table))
+            idx = idx[keep]
+            vals = vals[keep]
+        self._accumulate(idx, vals)
+        return n_keep
+
+    def _accumulate(self, idx: np.ndarray, vals: np.ndarray) -> None:
+        """Add in-range, finite samples (no checks)."""
+        n = self.n_bins
+        self._count += np.bincount(idx, minlength=n)
+        for c in range(self.channels):
+            v = vals[:, c]
+            self._sum[c] += np.bincount(idx, weights=v, minlength=n)
+            self._sumsq[c] += np.bincount(idx, weights=v * v, minlength=n)
+
+    # ------------------------------------------------------------------ merging
+    def _check_compatible(self, other: BinAccumulator) -> None:
+        if self.shape != other.shape or self.channels != other.channels:
+            raise ConfigError(
+                f"cannot merge tables of shape {self.shape}x{self.channels} and "
+                f"{other.shape}x{other.channels}: bin them with the same edges"
+            )
+
+    def merge_from(self, other: BinAccumulator) -> None:
+        """Add ``other``'s statistics into this accumulator (in place)."""
+        self._check_compatible(other)
+        self._count += other._count
+        self._sum += other._sum
+        self._sumsq += other._sumsq
+        self.n_dropped_nan += other.n_dropped_nan
+        self.n_dropped_range += other.n_dropped_range
+
+    def copy(self) -> BinAccumulator:
+        """Independent copy."""
+        new = BinAccumulator(self.shape, self.channels)
+        new.merge_from(self)
+        return new
+
+    # ------------------------------------------------------------------ statistics
+    @property
+    def count(self) -> np.ndarray:
+        """Samples per bin, int64, ``shape``."""
+        return self._count.reshape(self.shape).copy()
+
+    @property
+    def sum(self) -> np.ndarray:
+        """Σx per bin, float64, ``shape + (channels,)``."""
+        return np.moveaxis(self._sum, 0, -1).reshape(*self.shape, self.channels).copy()
+
+    @property
+    def sum_of_squares(self) -> np.ndarray:
+        """Σx² per bin, float64, ``shape + (channels,)``."""
+        return np.moveaxis(self._sumsq, 0, -1).reshape(*self.shape, self.channels).copy()
+
+    def mean(self) -> np.ndarray:
+        """Mean per bin and channel, ``shape + (channels,)``; NaN where the bin is empty."""
+        n = self._count.astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = self._sum / n
+        m[:, self._count == 0] = np.nan
+        return np.moveaxis(m, 0, -1).reshape(*self.shape, self.channels)
+
+    def variance(self) -> np.ndarray:
+        """Unbiased sample variance (ddof = 1) per bin; NaN where count < 2.
+
+        Computed as (Σx² − (Σx)²/n) / (n − 1), clipped at 0 against rounding.
+        """
+        n = self._count.astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = (self._sumsq - self._sum * self._sum / n) / (n - 1.0)
+        np.maximum(v, 0.0, out=v)
+        v[:, self._count < 2] = np.nan
+        return np.moveaxis(v, 0, -1).reshape(*self.shape, self.channels)
+
+    @classmethod
+    def from_statistics(
+        cls, count: np.ndarray, mean: np.ndarray, variance: np.ndarray
+    ) -> BinAccumulator:
+        """Rebuild running sums from stored count, mean and variance (inverse of the above).
+
+        Bins with count 0 get zero sums; bins with count 1 (variance NaN) get Σx² = x².
+        """
+        count = np.asarray(count, dtype=np.int64)
+        acc = cls(count.shape, np.shape(mean)[-1])
+        n = count.reshape(-1).astype(np.float64)
+        m = np.moveaxis(np.asarray(mean, dtype=np.float64).reshape(-1, acc.channels), 0, -1)
+        v = np.moveaxis(np.asarray(variance, dtype=np.float64).reshape(-1, acc.channels), 0, -1)
+        m = np.where(n > 0, m, 0.0)
+        v = np.where(n > 1, v, 0.0)
+        acc._count[:] = count.reshape(-1)
+        acc._sum[:] = m * n
+        acc._sumsq[:] = v * np.maximum(n - 1.0, 0.0) + n * m * m
+        return acc

@@ -1,0 +1,21 @@
+"""Δφ normalisation helpers (degrees)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def fold_delta_phi(delta_phi_deg: np.ndarray | float) -> np.ndarray:
+    """Fold Δφ (deg) into [0, 180] using isotropy: f(θi, θr, Δφ) = f(θi, θr, −Δφ).
+
+    Δφ is the camera azimuth minus the light azimuth; any multiple of 360° is removed first, so
+    −30 → 30, 190 → 170, 360 → 0 and 180 stays 180 (the mirror plane).
+    """
+    d = np.mod(np.asarray(delta_phi_deg, dtype=np.float64), 360.0)
+    return np.where(d > 180.0, 360.0 - d, d)
+
+
+def wrap_delta_phi(delta_phi_deg: np.ndarray | float, start_deg: float = -180.0) -> np.ndarray:
+    """Wrap Δφ (deg) into [start, start + 360) without folding."""
+    d = np.asarray(delta_phi_deg, dtype=np.float64)
+    return start_deg + np.mod(d - start_deg, 360.0)

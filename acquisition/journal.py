@@ -1,0 +1,182 @@
+"""The session journal: an SQLite (WAL) record of every step's intent and completion.
+
+A step is planned once, when the session is created, with its pose and commanded joints.
+Completing it records the frame's file name and SHA-256, the read-back joints, exposure and
+timestamps in one transaction, so after a crash every step is either done (with a frame whose
+hash can be checked) or still to do.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers.errors import SessionError, StorageError
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS steps (
+    step INTEGER PRIMARY KEY,
+    kind TEXT NOT NULL,               -- 'pose' or 'reference'
+    theta_i REAL, theta_r REAL, delta_phi REAL,   -- degrees
+    joints_cmd TEXT NOT NULL,         -- JSON {axis: degrees}
+    status TEXT NOT NULL DEFAULT 'planned',       -- planned | started | done
+    attempts INTEGER NOT NULL DEFAULT 0,
+    joints_read TEXT,                 -- JSON {axis: degrees}, read back after the move
+    frame TEXT,                       -- file name under frames/
+    sha256 TEXT,
+    exposure_s REAL, iso INTEGER,
+    started_at REAL, completed_at REAL,           -- host UNIX time, s
+    device_time_s REAL                -- device clock at completion (simulated rigs), s
+);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    at REAL NOT NULL, level TEXT NOT NULL, step INTEGER, message TEXT NOT NULL
+);
+"""
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One row of the journal."""
+
+    step: int
+    kind: str
+    theta_i: float
+    theta_r: float
+    delta_phi: float
+    joints_cmd: dict[str, float]
+    status: str
+    attempts: int
+    joints_read: dict[str, float] | None
+    frame: str | None
+    sha256: str | None
+    exposure_s: float | None
+    iso: int | None
+    started_at: float | None
+    completed_at: float | None
+    device_time_s: float | None
+
+
+class Journal:
+    """Open (or create) the journal database of a session folder."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self._db = sqlite3.connect(self.path, isolation_level=None)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.executescript(SCHEMA)
+        except sqlite3.DatabaseError as exc:
+            raise SessionError(f"journal {self.path} is unreadable ({exc}): the session is damaged") from None
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> Journal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _write(self, sql: str, params: Sequence[Any] = ()) -> None:
+        try:
+            self._db.execute(sql, params)
+        except sqlite3.OperationalError as exc:
+            if "full" in str(exc).lower():
+                raise StorageError(
+                    f"disk full writing the journal {self.path}: free space, then `gonio resume`"
+                ) from None
+            raise
+
+    # -- metadata ------------------------------------------------------------------------
+
+    def set_meta(self, key: str, value: Any) -> None:
+        self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, json.dumps(value)))
+
+    def meta(self, key: str, default: Any = None) -> Any:
+        row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return default if row is None else json.loads(row[0])
+
+    # -- steps ---------------------------------------------------------------------------
+
+    def plan_steps(self, rows: Sequence[tuple[str, float, float, float, dict[str, float]]]) -> None:
+        """Record the planned steps (kind, θi, θr, Δφ, joints) once, in capture order."""
+        if self._db.execute("SELECT COUNT(*) FROM steps").fetchone()[0]:
+            raise SessionError(f"journal {self.path} already holds a plan")
+        self._db.execute("BEGIN")
+        try:
+            self._db.executemany(
+                "INSERT INTO steps (step, kind, theta_i, theta_r, delta_phi, joints_cmd) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                [(i, k, ti, tr, dp, json.dumps(j)) for i, (k, ti, tr, dp, j) in enumerate(rows)],
+            )
+            self._db.execute("COMMIT")
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+
+    def mark_started(self, step: int) -> None:
+        self._write(
+            "UPDATE steps SET status = 'started', attempts = attempts + 1, started_at = ? "
+            "WHERE step = ?",
+            (time.time(), step),
+        )
+
+    def mark_done(
+        self,
+        step: int,
+        *,
+        frame: str,
+        sha256: str,
+        joints_read: dict[str, float],
+        exposure_s: float,
+        iso: int,
+        device_time_s: float | None,
+    ) -> None:
+        self._write(
+            "UPDATE steps SET status = 'done', frame = ?, sha256 = ?, joints_read = ?, "
+            "exposure_s = ?, iso = ?, completed_at = ?, device_time_s = ? WHERE step = ?",
+            (frame, sha256, json.dumps(joints_read), exposure_s, iso, time.time(),
+             device_time_s, step),
+        )
+
+    def mark_redo(self, step: int, why: str) -> None:
+        """Return a step to 'planned' (its frame was missing or did not match its hash)."""
+        self._write(
+            "UPDATE steps SET status = 'planned', frame = NULL, sha256 = NULL WHERE step = ?",
+            (step,),
+        )
+        self.log("warning", why, step)
+
+    def steps(self) -> Iterator[StepRecord]:
+        cur = self._db.execute(
+            "SELECT step, kind, theta_i, theta_r, delta_phi, joints_cmd, status, attempts, "
+            "joints_read, frame, sha256, exposure_s, iso, started_at, completed_at, "
+            "device_time_s FROM steps ORDER BY step"
+        )
+        for row in cur:
+            yield StepRecord(
+                row[0], row[1], row[2], row[3], row[4], json.loads(row[5]), row[6], row[7],
+                json.loads(row[8]) if row[8] else None, *row[9:],
+            )
+
+    def counts(self) -> dict[str, int]:
+        return dict(self._db.execute("SELECT status, COUNT(*) FROM steps GROUP BY status").fetchall())
+
+    # -- events --------------------------------------------------------------------------
+
+    def log(self, level: str, message: str, step: int | None = None) -> None:
+        self._write(
+            "INSERT INTO events (at, level, step, message) VALUES (?, ?, ?, ?)",
+            (time.time(), level, step, message),
+        )
+
+    def events(self) -> list[tuple[float, str, int | None, str]]:
+        return self._db.execute("SELECT at, level, step, message FROM events ORDER BY id").fetchall()

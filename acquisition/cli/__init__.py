@@ -16,6 +16,8 @@ from drivers.errors import GonioError
 
 COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.capture",
+    "acquisition.cli.plan",
+    "acquisition.cli.demo",
     "acquisition.cli.sim",
 )
 """Modules that register sub-commands, in the order ``gonio --help`` lists them."""

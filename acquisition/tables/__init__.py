@@ -3,5 +3,6 @@
 from acquisition.tables.accumulator import BinAccumulator
 from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
 from acquisition.tables.isotropic import IsotropicTable
+from acquisition.tables.merl_table import MerlTable
 
-__all__ = ["BinAccumulator", "IsotropicTable", "fold_delta_phi", "wrap_delta_phi"]
+__all__ = ["BinAccumulator", "IsotropicTable", "MerlTable", "fold_delta_phi", "wrap_delta_phi"]

@@ -22,10 +22,8 @@ count              int64 [Ni,Nr,Nφ]  samples per bin
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -35,7 +33,8 @@ import numpy as np
 
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
 from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
-from drivers.errors import ConfigError, StorageError
+from acquisition.tables.atomic import atomic_path
+from drivers.errors import ConfigError
 
 FORMAT = "gonio-isotropic-brdf"
 VERSION = 1
@@ -261,39 +260,19 @@ class IsotropicTable:
         """
         path = Path(path)
         prov = json.dumps(dict(self.provenance if provenance is None else provenance))
-        tmp = None
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-            os.close(fd)
-            with h5py.File(tmp, "w") as f:
-                f.create_dataset("theta_i_edges", data=self.theta_i_edges)
-                f.create_dataset("theta_r_edges", data=self.theta_r_edges)
-                f.create_dataset("delta_phi_edges", data=self.delta_phi_edges)
-                f.create_dataset("mean", data=self.mean.astype(np.float64))
-                f.create_dataset("variance", data=self.variance.astype(np.float64))
-                f.create_dataset("count", data=self.count.astype(np.int64))
-                f.attrs["units"] = "1/sr"
-                f.attrs["quantity"] = "brdf"
-                f.attrs["channels"] = "R,G,B"
-                f.attrs["format"] = FORMAT
-                f.attrs["version"] = np.int64(VERSION)
-                f.attrs["provenance"] = prov
-            with open(tmp, "rb") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-            dir_fd = os.open(path.parent, os.O_RDONLY)
-            try:
-                os.fsync(dir_fd)
-            finally:
-                os.close(dir_fd)
-        except OSError as exc:
-            raise StorageError(
-                f"cannot write table {path}: {exc.strerror or exc}; free space or pick another -o"
-            ) from exc
-        finally:
-            if tmp is not None:
-                with contextlib.suppress(FileNotFoundError):
-                    os.unlink(tmp)
+        with atomic_path(path, "table") as tmp, h5py.File(tmp, "w") as f:
+            f.create_dataset("theta_i_edges", data=self.theta_i_edges)
+            f.create_dataset("theta_r_edges", data=self.theta_r_edges)
+            f.create_dataset("delta_phi_edges", data=self.delta_phi_edges)
+            f.create_dataset("mean", data=self.mean.astype(np.float64))
+            f.create_dataset("variance", data=self.variance.astype(np.float64))
+            f.create_dataset("count", data=self.count.astype(np.int64))
+            f.attrs["units"] = "1/sr"
+            f.attrs["quantity"] = "brdf"
+            f.attrs["channels"] = "R,G,B"
+            f.attrs["format"] = FORMAT
+            f.attrs["version"] = np.int64(VERSION)
+            f.attrs["provenance"] = prov
 
     @classmethod
     def load_h5(cls, path: str | os.PathLike[str]) -> IsotropicTable:

@@ -1,0 +1,294 @@
+"""MERL half/difference coordinates (θh, θd, φd) and the MERL table's bin indices.
+
+Conventions follow the MERL database's reference reader (Matusik et al. 2003, ``BRDFRead.cpp``):
+
+* the half vector h is the normalised sum of the light direction ``wi`` and the view direction
+  ``wo`` (both unit, pointing away from the sample, normal +z); θh = acos(h_z),
+  φh = atan2(h_y, h_x);
+* the difference vector is ``wi`` rotated by −φh about z and then by −θh about y (into the frame
+  where h is the pole); θd = acos(d_z), φd = atan2(d_y, d_x) ∈ (−180°, 180°];
+* bins (90 × 90 × 180, flat index ``(ih·90 + id)·180 + ip``):
+  θh index ⌊√(θh / 90°) · 90⌋ (square-root spacing: fine near the specular peak),
+  θd index ⌊θd / 90° · 90⌋, φd index ⌊φd′ / 180° · 180⌋ with φd′ = φd + 180° when φd < 0
+  (reciprocity: swapping wi and wo turns φd into φd ± 180°).
+
+The reference clamps every index into its range (NaN gives 0); :func:`merl_indices` does so by
+default, or marks samples outside θh, θd ∈ [0°, 90°] with −1 (``clamp=False``) for binning.
+
+Public functions take and return degrees; the ``*_rad`` functions are the radian internals
+used by the tables and the MERL reader.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+THETA_H_BINS = 90
+THETA_D_BINS = 90
+PHI_D_BINS = 180
+MERL_SHAPE = (THETA_H_BINS, THETA_D_BINS, PHI_D_BINS)
+MERL_BINS = THETA_H_BINS * THETA_D_BINS * PHI_D_BINS
+
+_HALF_PI = np.pi / 2.0
+
+
+# ---------------------------------------------------------------------------- coordinates
+def halfdiff_rad_from_vectors(
+    wi: np.ndarray, wo: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θh, θd, φd) in radians for unit light ``wi`` and view ``wo`` vectors (…, 3).
+
+    Same rotation as the reference reader, written without the φh/θh round trip through
+    trigonometry (cos and sin of φh and θh come straight from h), so it agrees with the
+    reference up to float rounding. Where h is the normal (h_x = h_y = 0) φh is taken as 0.
+    """
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    hx = wi[..., 0] + wo[..., 0]
+    hy = wi[..., 1] + wo[..., 1]
+    hz = wi[..., 2] + wo[..., 2]
+    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
+    rho = np.sqrt(hx * hx + hy * hy)  # |h_xy| before normalisation
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_h = hz / norm
+        sin_h = rho / norm
+        on_pole = rho == 0.0
+        cos_p = np.where(on_pole, 1.0, hx / rho)
+        sin_p = np.where(on_pole, 0.0, hy / rho)
+    theta_h = np.arccos(np.clip(cos_h, -1.0, 1.0))
+    # t = Rz(−φh)·wi, then d = Ry(−θh)·t
+    tx = wi[..., 0] * cos_p + wi[..., 1] * sin_p
+    ty = wi[..., 1] * cos_p - wi[..., 0] * sin_p
+    tz = wi[..., 2]
+    dx = tx * cos_h - tz * sin_h
+    dz = tz * cos_h + tx * sin_h
+    theta_d = np.arccos(np.clip(dz, -1.0, 1.0))
+    phi_d = np.arctan2(ty, dx)
+    return theta_h, theta_d, phi_d
+
+
+def halfdiff_rad_reference(
+    theta_in: np.ndarray | float,
+    phi_in: np.ndarray | float,
+    theta_out: np.ndarray | float,
+    phi_out: np.ndarray | float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θh, θd, φd) in radians from spherical angles (radians), in the reference's operation order.
+
+    Follows the reference conversion step by step (vectors from angles, half vector from the
+    unnormalised components, two axis rotations of the normalised incoming vector), so that
+    lookups by angle land in the same bins as the reference reader even in degenerate
+    in-plane configurations, up to differences between numpy's and the C library's sin/cos.
+    """
+    ti, pi_, to, po = (
+        np.asarray(a, dtype=np.float64)
+        for a in np.broadcast_arrays(theta_in, phi_in, theta_out, phi_out)
+    )
+    iz = np.cos(ti)
+    ip = np.sin(ti)
+    ix = ip * np.cos(pi_)
+    iy = ip * np.sin(pi_)
+    oz = np.cos(to)
+    op = np.sin(to)
+    ox = op * np.cos(po)
+    oy = op * np.sin(po)
+    n_in = np.sqrt(ix * ix + iy * iy + iz * iz)
+    nx, ny, nz = ix / n_in, iy / n_in, iz / n_in
+    hx = (ix + ox) / 2.0
+    hy = (iy + oy) / 2.0
+    hz = (iz + oz) / 2.0
+    n_h = np.sqrt(hx * hx + hy * hy + hz * hz)
+    with np.errstate(invalid="ignore"):
+        theta_h = np.arccos(hz / n_h)
+    phi_h = np.arctan2(hy / n_h, hx / n_h)
+    tx, ty, tz = _rotate_like_reference((nx, ny, nz), (0.0, 0.0, 1.0), -phi_h)
+    dx, dy, dz = _rotate_like_reference((tx, ty, tz), (0.0, 1.0, 0.0), -theta_h)
+    with np.errstate(invalid="ignore"):
+        theta_d = np.arccos(dz)
+    phi_d = np.arctan2(dy, dx)
+    return theta_h, theta_d, phi_d
+
+
+def _rotate_like_reference(
+    v: tuple[np.ndarray, np.ndarray, np.ndarray],
+    axis: tuple[float, float, float],
+    angle: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rodrigues rotation of ``v`` about a unit ``axis``, every term (zeros included) added in
+    the reference's order, so signed zeros (which decide atan2 = ±π in plane) come out alike."""
+    c = np.cos(angle)
+    s = np.sin(angle)
+    a0, a1, a2 = axis
+    v0, v1, v2 = v
+    temp = (a0 * v0 + a1 * v1 + a2 * v2) * (1.0 - c)
+    cross = (a1 * v2 - a2 * v1, a2 * v0 - a0 * v2, a0 * v1 - a1 * v0)
+    return tuple(  # type: ignore[return-value]
+        vk * c + ak * temp + ck * s for vk, ak, ck in zip(v, axis, cross, strict=True)
+    )
+
+
+def halfdiff_from_vectors(
+    wi: np.ndarray, wo: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θh, θd, φd) in degrees for unit light ``wi`` and view ``wo`` vectors (…, 3), normal +z."""
+    out = halfdiff_rad_from_vectors(wi, wo)
+    return tuple(np.degrees(a) for a in out)  # type: ignore[return-value]
+
+
+def halfdiff_from_angles(
+    theta_i_deg: np.ndarray | float,
+    theta_r_deg: np.ndarray | float,
+    delta_phi_deg: np.ndarray | float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θh, θd, φd) in degrees for isotropic (θi, θr, Δφ) in degrees (light at azimuth 0)."""
+    out = halfdiff_rad_reference(
+        np.radians(theta_i_deg), 0.0, np.radians(theta_r_deg), np.radians(delta_phi_deg)
+    )
+    return tuple(np.degrees(a) for a in out)  # type: ignore[return-value]
+
+
+def vectors_from_halfdiff(
+    theta_h_deg: np.ndarray | float,
+    theta_d_deg: np.ndarray | float,
+    phi_d_deg: np.ndarray | float,
+    phi_h_deg: np.ndarray | float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unit light and view vectors (…, 3) for half/difference angles in degrees.
+
+    Inverse of :func:`halfdiff_from_vectors`: ``wi`` = Rz(φh)·Ry(θh)·d and ``wo`` is ``wi``
+    mirrored about the half vector.
+    """
+    th, td, pd, ph = (
+        np.radians(np.asarray(a, dtype=np.float64))
+        for a in np.broadcast_arrays(theta_h_deg, theta_d_deg, phi_d_deg, phi_h_deg)
+    )
+    d = np.stack([np.sin(td) * np.cos(pd), np.sin(td) * np.sin(pd), np.cos(td)], axis=-1)
+    # Ry(θh)
+    ch, sh = np.cos(th), np.sin(th)
+    x = d[..., 0] * ch + d[..., 2] * sh
+    z = -d[..., 0] * sh + d[..., 2] * ch
+    y = d[..., 1]
+    # Rz(φh)
+    cp, sp = np.cos(ph), np.sin(ph)
+    wi = np.stack([x * cp - y * sp, x * sp + y * cp, z], axis=-1)
+    h = np.stack([sh * cp, sh * sp, ch], axis=-1)
+    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, wo
+
+
+def angles_from_halfdiff(
+    theta_h_deg: np.ndarray | float,
+    theta_d_deg: np.ndarray | float,
+    phi_d_deg: np.ndarray | float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Isotropic (θi, θr, Δφ) in degrees, Δφ ∈ (−180, 180], for half/difference angles (deg)."""
+    wi, wo = vectors_from_halfdiff(theta_h_deg, theta_d_deg, phi_d_deg)
+    theta_i = np.degrees(np.arccos(np.clip(wi[..., 2], -1.0, 1.0)))
+    theta_r = np.degrees(np.arccos(np.clip(wo[..., 2], -1.0, 1.0)))
+    dphi = np.degrees(
+        np.arctan2(wo[..., 1], wo[..., 0]) - np.arctan2(wi[..., 1], wi[..., 0])
+    )
+    dphi = np.where(dphi > 180.0, dphi - 360.0, np.where(dphi <= -180.0, dphi + 360.0, dphi))
+    return theta_i, theta_r, dphi
+
+
+# ---------------------------------------------------------------------------- bin indices
+def merl_indices_rad(
+    theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray, *, clamp: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MERL bin indices (int64) for (θh, θd, φd) in radians.
+
+    ``clamp=True`` reproduces the reference (indices clamped into range, NaN → 0).
+    ``clamp=False`` marks θh or θd outside [0, π/2] or NaN (any of the three) with −1 in all
+    three indices; φd is folded into [0, π) by whole multiples of π first.
+    """
+    th = np.asarray(theta_h, dtype=np.float64)
+    td = np.asarray(theta_d, dtype=np.float64)
+    pd = np.asarray(phi_d, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        if clamp:
+            pd = np.where(pd < 0.0, pd + np.pi, pd)
+            h = np.sqrt(th / _HALF_PI * THETA_H_BINS * THETA_H_BINS)
+            d = td / _HALF_PI * THETA_D_BINS
+            p = pd / np.pi * PHI_D_BINS  # = (φd/π·360)/2 of the reference, exactly
+            ih = _trunc_clamped(np.where(th <= 0.0, 0.0, h), THETA_H_BINS)
+            idd = _trunc_clamped(d, THETA_D_BINS)
+            ip = _trunc_clamped(p, PHI_D_BINS)
+            return ih, idd, ip
+        # Fold like the reference inside (−π, π] (φd = π stays π, clamped into bin 179);
+        # anything else by whole multiples of π.
+        inside = (pd > -np.pi) & (pd <= np.pi)
+        pd = np.where(inside, np.where(pd < 0.0, pd + np.pi, pd), np.mod(pd, np.pi))
+        h = np.sqrt(np.maximum(th, 0.0) / _HALF_PI * THETA_H_BINS * THETA_H_BINS)
+        ih = np.minimum(h.astype(np.int64, casting="unsafe"), THETA_H_BINS - 1)
+        idd = np.minimum(
+            (td / _HALF_PI * THETA_D_BINS).astype(np.int64, casting="unsafe"), THETA_D_BINS - 1
+        )
+        ip = np.minimum(
+            (pd / np.pi * PHI_D_BINS).astype(np.int64, casting="unsafe"), PHI_D_BINS - 1
+        )
+        bad = ~((th >= 0.0) & (th <= _HALF_PI) & (td >= 0.0) & (td <= _HALF_PI) & (pd == pd))
+    if np.any(bad):
+        ih = np.where(bad, -1, ih)
+        idd = np.where(bad, -1, idd)
+        ip = np.where(bad, -1, ip)
+    return ih, idd, ip
+
+
+def _trunc_clamped(x: np.ndarray, n: int) -> np.ndarray:
+    """C ``(int)x`` then clamp into [0, n − 1]; NaN → 0 as on x86 (INT_MIN, clamped)."""
+    x = np.where(np.isnan(x), -1.0, np.clip(x, -1.0, float(n)))
+    return np.clip(np.trunc(x).astype(np.int64), 0, n - 1)
+
+
+def merl_flat_index_rad(
+    theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray, *, clamp: bool = True
+) -> np.ndarray:
+    """Flat MERL index ``(ih·90 + id)·180 + ip`` for radians; −1 outside when ``clamp=False``."""
+    ih, idd, ip = merl_indices_rad(theta_h, theta_d, phi_d, clamp=clamp)
+    flat = (ih * THETA_D_BINS + idd) * PHI_D_BINS + ip
+    if not clamp:
+        flat = np.where(ih < 0, -1, flat)
+    return flat
+
+
+def merl_indices(
+    theta_h_deg: np.ndarray | float,
+    theta_d_deg: np.ndarray | float,
+    phi_d_deg: np.ndarray | float,
+    *,
+    clamp: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MERL bin indices (θh, θd, φd) for angles in degrees; see :func:`merl_indices_rad`."""
+    return merl_indices_rad(
+        np.radians(theta_h_deg), np.radians(theta_d_deg), np.radians(phi_d_deg), clamp=clamp
+    )
+
+
+def merl_flat_index(
+    theta_h_deg: np.ndarray | float,
+    theta_d_deg: np.ndarray | float,
+    phi_d_deg: np.ndarray | float,
+    *,
+    clamp: bool = True,
+) -> np.ndarray:
+    """Flat MERL index for angles in degrees; see :func:`merl_flat_index_rad`."""
+    return merl_flat_index_rad(
+        np.radians(theta_h_deg), np.radians(theta_d_deg), np.radians(phi_d_deg), clamp=clamp
+    )
+
+
+def merl_bin_edges() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bin edges in degrees: θh (91, square-root spaced), θd (91), φd (181, folded to [0, 180])."""
+    k_h = np.arange(THETA_H_BINS + 1, dtype=np.float64)
+    return (
+        90.0 * (k_h / THETA_H_BINS) ** 2,
+        np.linspace(0.0, 90.0, THETA_D_BINS + 1),
+        np.linspace(0.0, 180.0, PHI_D_BINS + 1),
+    )
+
+
+def merl_bin_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nominal sample angles of the bins in degrees (each bin's lower edge, as MERL tabulates)."""
+    h, d, p = merl_bin_edges()
+    return h[:-1], d[:-1], p[:-1]

@@ -1,0 +1,210 @@
+"""MERL half/difference table: streaming 90 × 90 × 180 × RGB statistics over (θh, θd, φd)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from acquisition.halfdiff import (
+    MERL_SHAPE,
+    PHI_D_BINS,
+    halfdiff_rad_from_vectors,
+    halfdiff_rad_reference,
+    merl_bin_angles,
+    merl_bin_edges,
+    merl_flat_index_rad,
+)
+from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
+from drivers.errors import ConfigError
+
+CHUNK = 1 << 18
+"""Samples converted per step: bounds temporary memory whatever the batch size."""
+
+
+class MerlTable:
+    """Streaming BRDF table on the MERL grid (θh square-root spaced, θd, φd folded by 180°).
+
+    Bins are those of the MERL reference reader (see :mod:`acquisition.halfdiff`); a sample
+    lands in the bin the reference lookup would read for its directions. Samples with a
+    direction at or below the horizon, or θh/θd outside [0°, 90°], are dropped as out of range;
+    samples with NaN as NaN.
+
+    Parameters
+    ----------
+    provenance
+        Free metadata kept with the table (exported by the callers that write files).
+    """
+
+    shape = MERL_SHAPE
+
+    def __init__(self, provenance: Mapping[str, Any] | None = None) -> None:
+        self.provenance: dict[str, Any] = dict(provenance or {})
+        self._acc = BinAccumulator(MERL_SHAPE, 3)
+
+    # ------------------------------------------------------------------ accumulation
+    def add_vectors(self, wi: np.ndarray, wo: np.ndarray, rgb: np.ndarray) -> int:
+        """Bin samples given unit light ``wi`` and view ``wo`` vectors (N, 3), normal +z.
+
+        ``rgb`` (N, 3) is the BRDF in sr⁻¹. Returns the number of samples kept.
+        """
+        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        rgb = _as_rgb(rgb, wi.shape[0])
+        kept = 0
+        for a in range(0, wi.shape[0], CHUNK):
+            b = a + CHUNK
+            i, o = wi[a:b], wo[a:b]
+            th, td, pd = halfdiff_rad_from_vectors(i, o)
+            flat = merl_flat_index_rad(th, td, pd, clamp=False)
+            flat[(i[:, 2] <= 0.0) | (o[:, 2] <= 0.0)] = DROP_OUT_OF_RANGE
+            flat[np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)] = DROP_NAN
+            kept += self._acc.add_flat(flat, rgb[a:b])
+        return kept
+
+    def add_angles(
+        self,
+        theta_i_deg: np.ndarray | float,
+        theta_r_deg: np.ndarray | float,
+        delta_phi_deg: np.ndarray | float,
+        rgb: np.ndarray,
+    ) -> int:
+        """Bin samples at isotropic (θi, θr, Δφ) in degrees (light at azimuth 0).
+
+        Uses the reference reader's own angle conversion, so each sample lands exactly where
+        the reference lookup at the same angles reads. Returns the number kept.
+        """
+        ti, tr, dp = (
+            np.asarray(x, dtype=np.float64).reshape(-1)
+            for x in np.broadcast_arrays(theta_i_deg, theta_r_deg, delta_phi_deg)
+        )
+        rgb = _as_rgb(rgb, ti.size)
+        kept = 0
+        for a in range(0, ti.size, CHUNK):
+            b = a + CHUNK
+            th, td, pd = halfdiff_rad_reference(
+                np.radians(ti[a:b]), 0.0, np.radians(tr[a:b]), np.radians(dp[a:b])
+            )
+            flat = merl_flat_index_rad(th, td, pd, clamp=False)
+            flat[(ti[a:b] > 90.0) | (tr[a:b] > 90.0) | (ti[a:b] < 0) | (tr[a:b] < 0)] = (
+                DROP_OUT_OF_RANGE
+            )
+            flat[np.isnan(ti[a:b]) | np.isnan(tr[a:b]) | np.isnan(dp[a:b])] = DROP_NAN
+            kept += self._acc.add_flat(flat, rgb[a:b])
+        return kept
+
+    def add_halfdiff(
+        self,
+        theta_h_deg: np.ndarray | float,
+        theta_d_deg: np.ndarray | float,
+        phi_d_deg: np.ndarray | float,
+        rgb: np.ndarray,
+    ) -> int:
+        """Bin samples given directly as (θh, θd, φd) in degrees. Returns the number kept."""
+        th, td, pd = (
+            np.radians(np.asarray(x, dtype=np.float64).reshape(-1))
+            for x in np.broadcast_arrays(theta_h_deg, theta_d_deg, phi_d_deg)
+        )
+        rgb = _as_rgb(rgb, th.size)
+        kept = 0
+        for a in range(0, th.size, CHUNK):
+            b = a + CHUNK
+            flat = merl_flat_index_rad(th[a:b], td[a:b], pd[a:b], clamp=False)
+            flat[np.isnan(th[a:b]) | np.isnan(td[a:b]) | np.isnan(pd[a:b])] = DROP_NAN
+            kept += self._acc.add_flat(flat, rgb[a:b])
+        return kept
+
+    def add_flat(self, flat_index: np.ndarray, rgb: np.ndarray) -> int:
+        """Bin samples by precomputed flat MERL index (negative = drop). Returns the number kept."""
+        return self._acc.add_flat(flat_index, rgb)
+
+    def merge(self, other: MerlTable) -> MerlTable:
+        """New table holding the samples of both."""
+        if not isinstance(other, MerlTable):
+            raise ConfigError("a MERL table merges only with another MERL table")
+        new = MerlTable(self.provenance)
+        new._acc.merge_from(self._acc)
+        new._acc.merge_from(other._acc)
+        return new
+
+    def __add__(self, other: MerlTable) -> MerlTable:
+        return self.merge(other)
+
+    def fold_mirror_symmetry(self) -> MerlTable:
+        """New table pooling φd bins k and 179 − k (bilateral symmetry of isotropic BRDFs).
+
+        Reciprocity itself is already folded by the grid (φd and φd + 180° share a bin);
+        mirroring the pair about the plane of the normal and h maps φd to −φd ≡ 180° − φd.
+        """
+        new = MerlTable(self.provenance)
+        mirror = np.arange(PHI_D_BINS)[::-1]
+        a = self._acc
+        new._acc._count[:] = (
+            a._count.reshape(MERL_SHAPE) + a._count.reshape(MERL_SHAPE)[..., mirror]
+        ).reshape(-1)
+        for src, dst in ((a._sum, new._acc._sum), (a._sumsq, new._acc._sumsq)):
+            s = src.reshape(3, *MERL_SHAPE)
+            dst[:] = (s + s[..., mirror]).reshape(3, -1)
+        new._acc.n_dropped_nan = a.n_dropped_nan
+        new._acc.n_dropped_range = a.n_dropped_range
+        return new
+
+    # ------------------------------------------------------------------ statistics
+    @property
+    def count(self) -> np.ndarray:
+        """Samples per bin, int64 [90, 90, 180]."""
+        return self._acc.count
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Mean BRDF per bin, float64 [90, 90, 180, 3] in sr⁻¹; NaN where unmeasured."""
+        return self._acc.mean()
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Sample variance (ddof 1) per bin, (sr⁻¹)²; NaN where count < 2."""
+        return self._acc.variance()
+
+    @property
+    def variance_of_mean(self) -> np.ndarray:
+        """Variance of the bin mean, ``variance / count``; NaN where count < 2."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self._acc.variance() / self._acc.count[..., None]
+
+    @property
+    def measured(self) -> np.ndarray:
+        """Bins holding at least one sample, bool [90, 90, 180]."""
+        return self._acc.count > 0
+
+    @property
+    def n_samples(self) -> int:
+        """Samples binned so far."""
+        return int(self._acc._count.sum())
+
+    @property
+    def n_dropped_nan(self) -> int:
+        """Samples dropped for a NaN direction or value."""
+        return self._acc.n_dropped_nan
+
+    @property
+    def n_dropped_range(self) -> int:
+        """Samples dropped below the horizon or outside θh, θd ∈ [0°, 90°]."""
+        return self._acc.n_dropped_range
+
+    @staticmethod
+    def edges() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bin edges (θh, θd, φd) in degrees."""
+        return merl_bin_edges()
+
+    @staticmethod
+    def bin_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Nominal (lower-edge) bin angles (θh, θd, φd) in degrees, as MERL tabulates."""
+        return merl_bin_angles()
+
+
+def _as_rgb(rgb: np.ndarray, n: int) -> np.ndarray:
+    arr = np.asarray(rgb, dtype=np.float64)
+    if arr.size != 3 * n:
+        raise ValueError(f"expected {n} RGB samples (shape ({n}, 3)), got shape {arr.shape}")
+    return arr.reshape(n, 3)

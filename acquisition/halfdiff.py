@@ -202,9 +202,9 @@ def merl_indices_rad(
     ``clamp=False`` marks θh or θd outside [0, π/2] or NaN (any of the three) with −1 in all
     three indices; φd is folded into [0, π) by whole multiples of π first.
     """
-    th = np.asarray(theta_h, dtype=np.float64)
-    td = np.asarray(theta_d, dtype=np.float64)
-    pd = np.asarray(phi_d, dtype=np.float64)
+    th, td, pd = (
+        np.asarray(a, dtype=np.float64) for a in np.broadcast_arrays(theta_h, theta_d, phi_d)
+    )
     with np.errstate(invalid="ignore"):
         if clamp:
             pd = np.where(pd < 0.0, pd + np.pi, pd)

@@ -34,7 +34,7 @@ import numpy as np
 from calibration.raw import COLOURS, RawFrame
 from drivers.errors import CalibrationError
 
-_CHUNK_ROWS = 128  # superpixel rows per block: keeps the working set in cache
+_CHUNK_ROWS = 32  # superpixel rows per block: keeps the working set in cache
 
 
 @dataclass(frozen=True)

@@ -154,6 +154,8 @@ class SimCamera:
                     make=self._make,
                     model=self._model,
                     datetime=taken,
+                    active_area=self.sensor.active_area if self.sensor.optical_black_px else None,
+                    masked_areas=self.sensor.masked_areas,
                     fsync=True,
                 )
             except OSError as exc:

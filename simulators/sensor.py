@@ -74,6 +74,9 @@ class SensorModel:
         Aperture of the lens, written into each frame's metadata.
     seed:
         Seed of the fixed pattern (PRNU) and part of every frame's noise seed.
+    optical_black_px:
+        Width of a masked (optical-black) border on the top and left of the active area, px
+        (even; 0 = none). Masked pixels collect dark current but no light.
     """
 
     width: int = 800
@@ -91,6 +94,7 @@ class SensorModel:
     electrons_per_radiance_s: float = 1.0e4
     f_number: float = 8.0
     seed: int = 0
+    optical_black_px: int = 0
 
     def __post_init__(self) -> None:
         def bad(name: str, rule: str) -> ConfigError:
@@ -119,6 +123,9 @@ class SensorModel:
         object.__setattr__(self, "quantum_sensitivity", qe)
         if not isinstance(self.seed, int) or self.seed < 0:
             raise bad("seed", "a whole number ≥ 0")
+        ob = self.optical_black_px
+        if not isinstance(ob, int) or ob < 0 or ob % 2:
+            raise bad("optical_black_px", "an even whole number ≥ 0 (pixels)")
 
     @classmethod
     def from_dict(cls, params: Mapping[str, Any], *, where: str = "rig file") -> SensorModel:
@@ -134,7 +141,7 @@ class SensorModel:
                 f"known: {', '.join(known)}"
             )
         kwargs = dict(params)
-        for name in ("width", "height", "bits", "black_level_dn", "seed"):
+        for name in ("width", "height", "bits", "black_level_dn", "seed", "optical_black_px"):
             if name in kwargs and isinstance(kwargs[name], float) and kwargs[name].is_integer():
                 kwargs[name] = int(kwargs[name])
         try:
@@ -152,6 +159,26 @@ class SensorModel:
     def adc_max(self) -> int:
         """Largest raw value the ADC produces, DN."""
         return (1 << self.bits) - 1
+
+    @property
+    def raw_shape(self) -> tuple[int, int]:
+        """Shape of the mosaic :meth:`expose` returns: the active area plus the masked border."""
+        return self.height + self.optical_black_px, self.width + self.optical_black_px
+
+    @property
+    def active_area(self) -> tuple[int, int, int, int]:
+        """(top, left, bottom, right) of the light-sensitive area in the raw mosaic."""
+        ob = self.optical_black_px
+        return ob, ob, ob + self.height, ob + self.width
+
+    @property
+    def masked_areas(self) -> list[tuple[int, int, int, int]]:
+        """(top, left, bottom, right) rectangles of optical-black pixels (empty without border)."""
+        ob = self.optical_black_px
+        if ob == 0:
+            return []
+        rows, cols = self.raw_shape
+        return [(0, 0, ob, cols), (ob, 0, rows, ob)]
 
     @property
     def superpixel_shape(self) -> tuple[int, int]:
@@ -235,13 +262,19 @@ class SensorModel:
         Returns
         -------
         numpy.ndarray
-            Raw mosaic (H×W, uint16, DN), RGGB, black level included.
+            Raw mosaic (:attr:`raw_shape`, uint16, DN), RGGB, black level included: the active
+            H×W area, preceded by the optical-black border if the sensor has one.
         """
         if not (math.isfinite(exposure_s) and exposure_s > 0):
             raise ValueError(f"exposure_s must be a finite time > 0 s, got {exposure_s}")
         if not (math.isfinite(iso) and iso > 0):
             raise ValueError(f"iso must be > 0, got {iso}")
         lam = self.expected_electrons(radiance_rgb, exposure_s)
+        if self.optical_black_px:
+            active = lam
+            lam = np.full(self.raw_shape, self.dark_current_e_per_s * exposure_s)
+            top, left, bottom, right = self.active_area
+            lam[top:bottom, left:right] = active
         # Anything beyond the full well clips anyway; bounding λ keeps Poisson sampling finite.
         np.minimum(lam, 4.0 * self.full_well_e + 1e3, out=lam)
         rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, frame_seed])))

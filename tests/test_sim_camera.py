@@ -218,3 +218,26 @@ def test_capture_into_missing_folder_is_storage_error(tmp_path):
         cam.capture(tmp_path / "missing" / "x.dng", 1.0)
     assert cam.frames_taken == 0
     assert clock.now() < 1.0  # a failed capture does not consume the exposure
+
+
+def test_optical_black_border_reaches_the_loader(tmp_path):
+    from calibration.raw import BlackLevelWarning, load_raw
+
+    sensor = _sensor(optical_black_px=8)
+    assert sensor.raw_shape == (56, 72)
+    cam = SimCamera(sensor, _Scene(None))
+    frame = load_raw(cam.capture(tmp_path / "a.dng", 1.0).path)
+    assert frame.mosaic.shape == (48, 64) and frame.visible_origin == (8, 8)
+    assert frame.cfa_pattern == "RGGB"
+    assert frame.mosaic.mean() > 600  # the lit area, not the border
+    assert frame.optical_black["G"] == pytest.approx(512, abs=1)
+    # Masked pixels still collect dark current: a long, warm exposure lifts them above the
+    # stated black level and the loader says so.
+    warm = SimCamera(_sensor(optical_black_px=8, dark_current_e_per_s=100.0), _Scene(None))
+    with pytest.warns(BlackLevelWarning):
+        load_raw(warm.capture(tmp_path / "b.dng", 2.0).path)
+
+
+def test_optical_black_border_must_be_even():
+    with pytest.raises(ConfigError, match="optical_black_px"):
+        SensorModel.from_dict({"optical_black_px": 3})

@@ -211,6 +211,18 @@ class SimDmxWidget:
                     return state.levels
         return b""
 
+    def sim_states_during(self, t0: float, t1: float) -> list[bytes]:
+        """Every universe the fixtures showed during [t0, t1] (s), oldest first.
+
+        One entry means the light was constant over the interval (e.g. an exposure).
+        """
+        states = [self.sim_state_at(t0)]
+        with self._lock:
+            states += [
+                h.levels for h in self._history if not h.dropped and t0 < h.active_s <= t1
+            ]
+        return states
+
     def sim_wait_idle(self, timeout_s: float = 2.0) -> bool:
         """Block until every byte written to the pty so far has been parsed (host time).
 

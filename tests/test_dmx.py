@@ -250,6 +250,10 @@ def test_refresh_limit_spaces_sends_by_one_output_period(stepped) -> None:
     assert received.tolist() == sent
     assert np.all(np.diff(received) >= period - 1e-12)
     assert not any(h.dropped for h in history)  # every state went out on the wire
+    # an exposure inside one state's settled span sees one state; one straddling sees two
+    h1, h2 = history[1], history[2]
+    assert sim.sim_states_during(h1.active_s, h2.active_s - 1e-6) == [h1.levels]
+    assert sim.sim_states_during(h1.active_s, h2.active_s) == [h1.levels, h2.levels]
     # the driver's readiness bound covers the simulated output latency, and is not slack
     for h in history:
         ready = widget.ready_at(h.received_s, 512)
@@ -282,6 +286,11 @@ def test_missing_port_is_a_one_line_communication_error(tmp_path) -> None:
     with pytest.raises(CommunicationError, match="cannot open DMX widget port") as err:
         DmxWidget(str(tmp_path / "ttyUSB9"))
     assert "\n" not in str(err.value) and "ttyUSB9" in str(err.value)
+
+
+def test_second_client_cannot_take_an_open_widget(sim: SimDmxWidget) -> None:
+    with DmxWidget(sim.path), pytest.raises(CommunicationError, match="no other program"):
+        DmxWidget(sim.path)
 
 
 def test_silent_device_is_reported_and_port_released() -> None:

@@ -29,6 +29,11 @@ PHI_D_BINS = 180
 MERL_SHAPE = (THETA_H_BINS, THETA_D_BINS, PHI_D_BINS)
 MERL_BINS = THETA_H_BINS * THETA_D_BINS * PHI_D_BINS
 
+OUT_OF_RANGE_INDEX = -1
+"""Unclamped index of a sample outside θh, θd ∈ [0°, 90°]."""
+NAN_INDEX = -2
+"""Unclamped index of a sample with a NaN angle."""
+
 _HALF_PI = np.pi / 2.0
 
 
@@ -199,8 +204,9 @@ def merl_indices_rad(
     """MERL bin indices (int64) for (θh, θd, φd) in radians.
 
     ``clamp=True`` reproduces the reference (indices clamped into range, NaN → 0).
-    ``clamp=False`` marks θh or θd outside [0, π/2] or NaN (any of the three) with −1 in all
-    three indices; φd is folded into [0, π) by whole multiples of π first.
+    ``clamp=False`` marks θh or θd outside [0, π/2] with −1 (:data:`OUT_OF_RANGE_INDEX`) and
+    NaN in any of the three with −2 (:data:`NAN_INDEX`) in all three indices; φd outside
+    (−π, π] is folded by whole multiples of π.
     """
     th, td, pd = (
         np.asarray(a, dtype=np.float64) for a in np.broadcast_arrays(theta_h, theta_d, phi_d)
@@ -215,23 +221,37 @@ def merl_indices_rad(
             idd = _trunc_clamped(d, THETA_D_BINS)
             ip = _trunc_clamped(p, PHI_D_BINS)
             return ih, idd, ip
-        # Fold like the reference inside (−π, π] (φd = π stays π, clamped into bin 179);
-        # anything else by whole multiples of π.
-        inside = (pd > -np.pi) & (pd <= np.pi)
-        pd = np.where(inside, np.where(pd < 0.0, pd + np.pi, pd), np.mod(pd, np.pi))
-        h = np.sqrt(np.maximum(th, 0.0) / _HALF_PI * THETA_H_BINS * THETA_H_BINS)
+    return _unclamped_indices(th, td, pd, np.pi)
+
+
+def _unclamped_indices(
+    th: np.ndarray, td: np.ndarray, pd: np.ndarray, half_turn: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unclamped indices for angles in radians (``half_turn`` = π) or degrees (180).
+
+    Outside θh, θd ∈ [0, quarter turn] → −1 in all three; NaN in any → −2 in all three.
+    φd is folded like the reference inside (−half, half] (so φd = half turn stays there and
+    is clamped into the last bin) and by whole half turns elsewhere.
+    """
+    quarter = half_turn / 2.0
+    with np.errstate(invalid="ignore"):
+        inside = (pd > -half_turn) & (pd <= half_turn)
+        pd = np.where(inside, np.where(pd < 0.0, pd + half_turn, pd), np.mod(pd, half_turn))
+        h = np.sqrt(np.maximum(th, 0.0) / quarter * THETA_H_BINS * THETA_H_BINS)
         ih = np.minimum(h.astype(np.int64, casting="unsafe"), THETA_H_BINS - 1)
         idd = np.minimum(
-            (td / _HALF_PI * THETA_D_BINS).astype(np.int64, casting="unsafe"), THETA_D_BINS - 1
+            (td / quarter * THETA_D_BINS).astype(np.int64, casting="unsafe"), THETA_D_BINS - 1
         )
         ip = np.minimum(
-            (pd / np.pi * PHI_D_BINS).astype(np.int64, casting="unsafe"), PHI_D_BINS - 1
+            (pd / half_turn * PHI_D_BINS).astype(np.int64, casting="unsafe"), PHI_D_BINS - 1
         )
-        bad = ~((th >= 0.0) & (th <= _HALF_PI) & (td >= 0.0) & (td <= _HALF_PI) & (pd == pd))
+        nan = np.isnan(th) | np.isnan(td) | np.isnan(pd)
+        bad = ~((th >= 0.0) & (th <= quarter) & (td >= 0.0) & (td <= quarter)) | nan
     if np.any(bad):
-        ih = np.where(bad, -1, ih)
-        idd = np.where(bad, -1, idd)
-        ip = np.where(bad, -1, ip)
+        code = np.where(nan, NAN_INDEX, OUT_OF_RANGE_INDEX)
+        ih = np.where(bad, code, ih)
+        idd = np.where(bad, code, idd)
+        ip = np.where(bad, code, ip)
     return ih, idd, ip
 
 
@@ -244,12 +264,92 @@ def _trunc_clamped(x: np.ndarray, n: int) -> np.ndarray:
 def merl_flat_index_rad(
     theta_h: np.ndarray, theta_d: np.ndarray, phi_d: np.ndarray, *, clamp: bool = True
 ) -> np.ndarray:
-    """Flat MERL index ``(ih·90 + id)·180 + ip`` for radians; −1 outside when ``clamp=False``."""
-    ih, idd, ip = merl_indices_rad(theta_h, theta_d, phi_d, clamp=clamp)
-    flat = (ih * THETA_D_BINS + idd) * PHI_D_BINS + ip
+    """Flat MERL index ``(ih·90 + id)·180 + ip`` for radians.
+
+    ``clamp=True``: the reference's clamped index. ``clamp=False``: −1 outside, −2 for NaN
+    (see :func:`merl_indices_rad`), computed by a fast chunked path.
+    """
     if not clamp:
-        flat = np.where(ih < 0, -1, flat)
-    return flat
+        return _flat_unclamped(theta_h, theta_d, phi_d, np.pi)
+    ih, idd, ip = merl_indices_rad(theta_h, theta_d, phi_d, clamp=True)
+    return (ih * THETA_D_BINS + idd) * PHI_D_BINS + ip
+
+
+def _flat_unclamped(
+    theta_h: np.ndarray | float,
+    theta_d: np.ndarray | float,
+    phi_d: np.ndarray | float,
+    half_turn: float,
+) -> np.ndarray:
+    th, td, pd = np.broadcast_arrays(theta_h, theta_d, phi_d)
+    out = np.empty(th.shape, dtype=np.int64)
+    flat_index_unclamped_into(
+        np.ravel(th).astype(np.float64, copy=False),
+        np.ravel(td).astype(np.float64, copy=False),
+        np.ravel(pd).astype(np.float64, copy=False),
+        out.reshape(-1),
+        half_turn,
+    )
+    return out
+
+
+_INDEX_CHUNK = 1 << 16  # samples per step: temporaries stay in L2
+
+
+def flat_index_unclamped_into(
+    th: np.ndarray, td: np.ndarray, pd: np.ndarray, out: np.ndarray, half_turn: float
+) -> None:
+    """Unclamped flat MERL index of 1-D angles into ``out`` (int64): −1 outside, −2 NaN.
+
+    Angles in radians (``half_turn`` = π) or degrees (180). Same arithmetic as
+    :func:`merl_indices_rad` (the reference's operation order) done in place on L2-sized
+    chunks, the index built in float64 (exact for these integers) and cast once. Range and NaN
+    checks are reductions over the chunk; only a chunk that fails them takes the general path.
+    """
+    quarter = half_turn / 2.0
+    size = min(_INDEX_CHUNK, th.size)
+    buf_h, buf_d, buf_p = np.empty(size), np.empty(size), np.empty(size)
+    buf_m = np.empty(size, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for a in range(0, th.size, _INDEX_CHUNK):
+            b = min(a + _INDEX_CHUNK, th.size)
+            x, y, z = th[a:b], td[a:b], pd[a:b]
+            ok = (
+                x.min() >= 0.0
+                and x.max() <= quarter
+                and y.min() >= 0.0
+                and y.max() <= quarter
+                and z.min() > -half_turn
+                and z.max() <= half_turn  # all of these are False when a NaN is present
+            )
+            if not ok:
+                ih, idd, ip = _unclamped_indices(x, y, z, half_turn)
+                out[a:b] = np.where(ih < 0, ih, (ih * THETA_D_BINS + idd) * PHI_D_BINS + ip)
+                continue
+            k = b - a
+            h, d, p, neg = buf_h[:k], buf_d[:k], buf_p[:k], buf_m[:k]
+            np.divide(x, quarter, out=h)
+            h *= THETA_H_BINS
+            h *= THETA_H_BINS
+            np.sqrt(h, out=h)
+            np.floor(h, out=h)
+            np.minimum(h, THETA_H_BINS - 1, out=h)
+            np.divide(y, quarter, out=d)
+            d *= THETA_D_BINS
+            np.floor(d, out=d)
+            np.minimum(d, THETA_D_BINS - 1, out=d)
+            np.less(z, 0.0, out=neg)
+            np.multiply(neg, half_turn, out=p)
+            p += z
+            p /= half_turn
+            p *= PHI_D_BINS
+            np.floor(p, out=p)
+            np.minimum(p, PHI_D_BINS - 1, out=p)
+            h *= THETA_D_BINS
+            h += d
+            h *= PHI_D_BINS
+            h += p
+            out[a:b] = h
 
 
 def merl_indices(
@@ -272,9 +372,16 @@ def merl_flat_index(
     *,
     clamp: bool = True,
 ) -> np.ndarray:
-    """Flat MERL index for angles in degrees; see :func:`merl_flat_index_rad`."""
+    """Flat MERL index for angles in degrees; see :func:`merl_flat_index_rad`.
+
+    With ``clamp=False`` the index is computed from degrees directly (θh/90°, not via
+    radians); it can differ from the radian path only where a value sits within float
+    rounding of a bin edge.
+    """
+    if not clamp:
+        return _flat_unclamped(theta_h_deg, theta_d_deg, phi_d_deg, 180.0)
     return merl_flat_index_rad(
-        np.radians(theta_h_deg), np.radians(theta_d_deg), np.radians(phi_d_deg), clamp=clamp
+        np.radians(theta_h_deg), np.radians(theta_d_deg), np.radians(phi_d_deg), clamp=True
     )
 
 

@@ -112,10 +112,28 @@ def test_index_formulas_on_hand_values():
 def test_unclamped_indices_mark_out_of_range():
     flat = merl_flat_index([10.0, -1.0, 91.0, 10.0, np.nan, 10.0], [10, 10, 10, 91, 10, 10],
                            [0, 0, 0, 0, 0, 540.5], clamp=False)
-    assert list(flat[1:5]) == [-1, -1, -1, -1]
+    assert list(flat[1:5]) == [-1, -1, -1, -2]  # −1 outside, −2 NaN
     ih, idd, ip = merl_indices(10.0, 10.0, [0.0, 540.5])
     assert flat[0] == (ih[0] * 90 + idd[0]) * 180 + ip[0]
     assert flat[5] % 180 == 0  # 540.5° folds to 0.5°
     clamped = merl_flat_index([-1.0, 91.0, np.nan], [10.0, 10.0, np.nan], 0.0)
     assert list(clamped // (90 * 180)) == [0, 89, 0]
     assert ((clamped >= 0) & (clamped < np.prod(MERL_SHAPE))).all()
+
+
+def test_fast_unclamped_index_equals_general_path():
+    rng = np.random.default_rng(6)
+    n = 300_000  # several internal chunks; some chunks hold bad values, most do not
+    th, td = rng.uniform(0, 90, n), rng.uniform(0, 90, n)
+    pd = rng.uniform(-180, 180, n)
+    pd[:1000:7] = 180.0
+    th[150_000:150_100] = rng.uniform(-5, 95, 100)
+    pd[200_000:200_010] = np.nan
+    pd[250_000:250_010] = 400.5  # folded by whole half turns (not on a bin edge)
+    fast = merl_flat_index(th, td, pd, clamp=False)
+    ih, idd, ip = merl_indices(th, td, pd, clamp=False)
+    general = np.where(ih < 0, ih, (ih * 90 + idd) * 180 + ip)
+    np.testing.assert_array_equal(fast, general)
+    inside = fast >= 0
+    np.testing.assert_array_equal(fast[inside], merl_flat_index(th, td, pd)[inside])
+    assert (fast == -2).sum() == 10 and (fast == -1).sum() > 0

@@ -64,27 +64,37 @@ class BinAccumulator:
             return 0
         if idx.dtype != np.intp:
             idx = idx.astype(np.intp)
-        finite = np.isfinite(vals).all(axis=1)
+        # Fast path: reductions only (no per-sample temporaries) when every sample is good.
+        with np.errstate(over="ignore", invalid="ignore"):
+            all_finite = bool(np.isfinite(vals.sum()))
+        if all_finite and idx.min() >= 0 and idx.max() < self.n_bins:
+            self._accumulate(idx, vals)
+            return idx.size
+        with np.errstate(invalid="ignore", over="ignore"):
+            finite = np.isfinite(vals.sum(axis=1))  # NaN/inf propagate through the row sum
         in_table = (idx >= 0) & (idx < self.n_bins)
-        keep = finite & in_table
-        n_keep = int(np.count_nonzero(keep))
-        if n_keep != idx.size:
-            nan = ~finite | (idx == DROP_NAN)
-            self.n_dropped_nan += int(np.count_nonzero(nan))
-            self.n_dropped_range += int(np.count_nonzero(~nan & ~in_table))
-            idx = idx[keep]
-            vals = vals[keep]
-        self._accumulate(idx, vals)
-        return n_keep
+        nan = ~finite | (idx == DROP_NAN)
+        keep = ~nan & in_table
+        self.n_dropped_nan += int(np.count_nonzero(nan))
+        self.n_dropped_range += int(np.count_nonzero(~nan & ~in_table))
+        self._accumulate(idx[keep], vals[keep])
+        return int(np.count_nonzero(keep))
 
     def _accumulate(self, idx: np.ndarray, vals: np.ndarray) -> None:
-        """Add in-range, finite samples (no checks)."""
-        n = self.n_bins
-        self._count += np.bincount(idx, minlength=n)
+        """Add in-range, finite samples (no checks).
+
+        ``np.add.at`` (unbuffered scatter-add) rather than ``np.bincount``: same speed per
+        sample, without allocating a table-sized result per call, so small batches into the
+        1.46 M-bin MERL table stay cheap.
+        """
+        np.add.at(self._count, idx, 1)
+        # Channel-first contiguous copy: add.at is ~2.5x faster on contiguous weights.
+        vt = np.ascontiguousarray(vals.T)
         for c in range(self.channels):
-            v = vals[:, c]
-            self._sum[c] += np.bincount(idx, weights=v, minlength=n)
-            self._sumsq[c] += np.bincount(idx, weights=v * v, minlength=n)
+            v = vt[c]
+            np.add.at(self._sum[c], idx, v)
+            np.multiply(v, v, out=v)
+            np.add.at(self._sumsq[c], idx, v)
 
     # ------------------------------------------------------------------ merging
     def _check_compatible(self, other: BinAccumulator) -> None:

@@ -9,18 +9,23 @@ import numpy as np
 
 from acquisition.halfdiff import (
     MERL_SHAPE,
+    NAN_INDEX,
+    OUT_OF_RANGE_INDEX,
     PHI_D_BINS,
+    flat_index_unclamped_into,
     halfdiff_rad_from_vectors,
     halfdiff_rad_reference,
     merl_bin_angles,
     merl_bin_edges,
-    merl_flat_index_rad,
 )
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
 from drivers.errors import ConfigError
 
-CHUNK = 1 << 18
-"""Samples converted per step: bounds temporary memory whatever the batch size."""
+CHUNK = 1 << 16
+"""Samples converted per step: temporaries stay cache-sized whatever the batch size."""
+
+# The index codes of acquisition.halfdiff are the accumulator's drop codes.
+assert (NAN_INDEX, OUT_OF_RANGE_INDEX) == (DROP_NAN, DROP_OUT_OF_RANGE)
 
 
 class MerlTable:
@@ -52,14 +57,19 @@ class MerlTable:
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
         wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
         rgb = _as_rgb(rgb, wi.shape[0])
+        n = wi.shape[0]
+        idx = np.empty(min(CHUNK, n), dtype=np.int64)
         kept = 0
-        for a in range(0, wi.shape[0], CHUNK):
-            b = a + CHUNK
-            i, o = wi[a:b], wo[a:b]
+        for a in range(0, n, CHUNK):
+            b = min(a + CHUNK, n)
+            i, o, flat = wi[a:b], wo[a:b], idx[: b - a]
             th, td, pd = halfdiff_rad_from_vectors(i, o)
-            flat = merl_flat_index_rad(th, td, pd, clamp=False)
-            flat[(i[:, 2] <= 0.0) | (o[:, 2] <= 0.0)] = DROP_OUT_OF_RANGE
-            flat[np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)] = DROP_NAN
+            flat_index_unclamped_into(th, td, pd, flat, np.pi)
+            if not (i[:, 2].min() > 0.0 and o[:, 2].min() > 0.0):  # False on NaN too
+                below = (i[:, 2] <= 0.0) | (o[:, 2] <= 0.0)
+                given_nan = np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)
+                # wi = −wo has no half vector (NaN angles): still below the horizon.
+                flat[below & ~given_nan] = DROP_OUT_OF_RANGE
             kept += self._acc.add_flat(flat, rgb[a:b])
         return kept
 
@@ -73,24 +83,26 @@ class MerlTable:
         """Bin samples at isotropic (θi, θr, Δφ) in degrees (light at azimuth 0).
 
         Uses the reference reader's own angle conversion, so each sample lands exactly where
-        the reference lookup at the same angles reads. Returns the number kept.
+        the reference lookup at the same angles reads. θi or θr outside [0°, 90°] is dropped.
+        Returns the number kept.
         """
         ti, tr, dp = (
             np.asarray(x, dtype=np.float64).reshape(-1)
             for x in np.broadcast_arrays(theta_i_deg, theta_r_deg, delta_phi_deg)
         )
         rgb = _as_rgb(rgb, ti.size)
+        idx = np.empty(min(CHUNK, ti.size), dtype=np.int64)
         kept = 0
         for a in range(0, ti.size, CHUNK):
-            b = a + CHUNK
+            b = min(a + CHUNK, ti.size)
+            x, y, flat = ti[a:b], tr[a:b], idx[: b - a]
             th, td, pd = halfdiff_rad_reference(
-                np.radians(ti[a:b]), 0.0, np.radians(tr[a:b]), np.radians(dp[a:b])
+                np.radians(x), 0.0, np.radians(y), np.radians(dp[a:b])
             )
-            flat = merl_flat_index_rad(th, td, pd, clamp=False)
-            flat[(ti[a:b] > 90.0) | (tr[a:b] > 90.0) | (ti[a:b] < 0) | (tr[a:b] < 0)] = (
-                DROP_OUT_OF_RANGE
-            )
-            flat[np.isnan(ti[a:b]) | np.isnan(tr[a:b]) | np.isnan(dp[a:b])] = DROP_NAN
+            flat_index_unclamped_into(th, td, pd, flat, np.pi)
+            with np.errstate(invalid="ignore"):
+                outside = (x < 0.0) | (x > 90.0) | (y < 0.0) | (y > 90.0)
+            flat[outside & (flat != DROP_NAN)] = DROP_OUT_OF_RANGE
             kept += self._acc.add_flat(flat, rgb[a:b])
         return kept
 
@@ -101,17 +113,21 @@ class MerlTable:
         phi_d_deg: np.ndarray | float,
         rgb: np.ndarray,
     ) -> int:
-        """Bin samples given directly as (θh, θd, φd) in degrees. Returns the number kept."""
+        """Bin samples given directly as (θh, θd, φd) in degrees. Returns the number kept.
+
+        The fastest entry point: the index is computed from degrees directly.
+        """
         th, td, pd = (
-            np.radians(np.asarray(x, dtype=np.float64).reshape(-1))
+            np.asarray(x, dtype=np.float64).reshape(-1)
             for x in np.broadcast_arrays(theta_h_deg, theta_d_deg, phi_d_deg)
         )
         rgb = _as_rgb(rgb, th.size)
+        idx = np.empty(min(CHUNK, th.size), dtype=np.int64)
         kept = 0
         for a in range(0, th.size, CHUNK):
-            b = a + CHUNK
-            flat = merl_flat_index_rad(th[a:b], td[a:b], pd[a:b], clamp=False)
-            flat[np.isnan(th[a:b]) | np.isnan(td[a:b]) | np.isnan(pd[a:b])] = DROP_NAN
+            b = min(a + CHUNK, th.size)
+            flat = idx[: b - a]
+            flat_index_unclamped_into(th[a:b], td[a:b], pd[a:b], flat, 180.0)
             kept += self._acc.add_flat(flat, rgb[a:b])
         return kept
 

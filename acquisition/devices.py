@@ -9,14 +9,14 @@ angles. Every move passes the planner's guard before the motion controller sends
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from contextlib import ExitStack, contextmanager
+from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
-from calibration.linearize import linearize
-from drivers.dynamixel import Axis, MotionController, ServoBus
 
+from calibration.linearize import linearize
 from calibration.raw import load_raw
+from drivers.dynamixel import Axis, MotionController, ServoBus
 from drivers.errors import ConfigError
 from simulators.camera import SimCamera
 from simulators.clock import SimClock
@@ -24,6 +24,7 @@ from simulators.dynamixel import SimServoBus
 from simulators.materials import Material
 from simulators.sensor import SensorModel
 
+from .kinematics import Pose
 from .planner import Planner
 from .rig import AxisConfig, RigConfig
 from .simscene import SampleHolder, make_scene, white_material
@@ -82,6 +83,10 @@ class RigDevices:
     def device_time_s(self) -> float | None:
         return None if self.clock is None else self.clock.now()
 
+    def host_work(self) -> AbstractContextManager[None]:
+        """Stops the simulated clock during host-only work (no effect on real hardware)."""
+        return self.clock.frozen() if self.clock is not None else nullcontext()
+
     def roi_saturated(self, frame: Path) -> bool:
         """True when any pixel of the region of interest is clipped."""
         image = linearize(load_raw(frame))
@@ -106,28 +111,35 @@ def open_devices(
         )
     any_sim = any(b.simulated for b in rig.buses.values()) or rig.camera.driver == "simulated"
     clock = SimClock(rig.time_scale) if any_sim else None
+    axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}
+    wr = rig.white_reference
+    park = planner.joints_for(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))
     with ExitStack() as stack:
         sims: dict[str, SimServoBus] = {}
         buses: dict[str, ServoBus] = {}
         for name, bus_cfg in rig.buses.items():
             port = bus_cfg.port
             if bus_cfg.simulated:
-                ids = [a.servo_id for a in rig.axes.values() if a.bus == name]
-                sim = SimServoBus(ids, baud=bus_cfg.baud, clock=clock, faults=list(sim_faults),
-                                  seed=seed)
+                on_bus = [a for a in rig.axes.values() if a.bus == name]
+                sim = SimServoBus(
+                    [a.servo_id for a in on_bus], baud=bus_cfg.baud, clock=clock,
+                    faults=list(sim_faults), seed=seed,
+                    positions={a.servo_id: axes[a.name].deg_to_ticks(park[a.name]) for a in on_bus},
+                )
                 port = sim.start()
                 stack.callback(sim.stop)
                 sims[name] = sim
             bus = ServoBus(port, bus_cfg.baud, name=name)
             stack.enter_context(bus)
             buses[name] = bus
-        axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}
         motion = MotionController(
-            {name: (buses[cfg.bus], axes[name]) for name, cfg in rig.axes.items()},
+            axes.values(),
+            {name: buses[cfg.bus] for name, cfg in rig.axes.items()},
             guard=planner.check_joints,
-            sleep=clock.sleep if clock is not None else None,
+            **({"sleep": clock.sleep} if clock is not None else {}),
         )
-        motion.enable()
+        motion.apply_profiles()
+        motion.set_torque(True)
 
         def true_joints() -> dict[str, float]:
             out = {}

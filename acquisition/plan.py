@@ -33,11 +33,10 @@ class AxisRange:
         n = int(np.floor((self.stop - self.start) / self.step + 1e-9)) + 1
         return self.start + self.step * np.arange(n)
 
-    def edges(self, lo: float, hi: float) -> np.ndarray:
-        """Bin edges centred on the values, clipped to the domain [lo, hi]."""
+    def edges(self) -> np.ndarray:
+        """Bin edges centred on the values (so bin centres are exactly the grid's angles)."""
         v = self.values()
-        edges = np.concatenate([[v[0] - self.step / 2], v + self.step / 2])
-        return np.unique(np.clip(edges, lo, hi))
+        return np.concatenate([[v[0] - self.step / 2], v + self.step / 2])
 
 
 def parse_range(sec: Section, key: str, lo: float, hi: float) -> AxisRange:
@@ -100,8 +99,7 @@ def _grid(sec: Section) -> tuple[list[Pose], TableSpec]:
         Pose(float(a), float(b), float(c))
         for a in ti.values() for b in tr.values() for c in dp.values()
     ]
-    dp_lo, dp_hi = (0.0, 180.0) if dp.start >= 0 and dp.stop <= 180 else (-180.0, 360.0)
-    return poses, TableSpec(ti.edges(0, 90), tr.edges(0, 90), dp.edges(dp_lo, dp_hi))
+    return poses, TableSpec(ti.edges(), tr.edges(), dp.edges())
 
 
 def _list(sec: Section) -> tuple[list[Pose], TableSpec]:

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from calibration.linearize import linearize, roi_mean
 from calibration.raw import load_raw
-
 from drivers.errors import SessionError
 
 from .journal import StepRecord
@@ -54,7 +54,8 @@ class Reduction:
 def frame_signal(path: Path, roi: tuple[int, int, int, int], step: int) -> FrameSignal:
     """Linearize a frame and average its region of interest."""
     image = linearize(load_raw(path))
-    mean, var, n = roi_mean(image, roi)
+    x0, y0, x1, y1 = roi
+    mean, var, n = roi_mean(image, (x0, y0, x1 - x0, y1 - y0))
     return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
 
 

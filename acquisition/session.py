@@ -19,6 +19,7 @@ import json
 import shutil
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -59,6 +60,10 @@ class CaptureDevices(Protocol):
 
     def device_time_s(self) -> float | None:
         """The device clock (simulated rigs), or None."""
+
+    def host_work(self) -> AbstractContextManager[None]:
+        """Context for host-only work (checks, journal, hashing): a simulated rig's clock
+        stops inside it, since host time is not rig time scaled up."""
 
 
 @dataclass(frozen=True)
@@ -219,32 +224,36 @@ class CaptureEngine:
             exposure = self.plan.capture.exposure_s or self.rig.camera.exposure_s
             iso = self.plan.capture.iso or self.rig.camera.iso
             present = None
-            for rec in records:
-                if rec.status == "done":
-                    continue
-                target = "white" if rec.kind == REFERENCE else "sample"
-                if target != present:
-                    self.devices.present(target)
-                    present = target
-                try:
+            current: StepRecord | None = None
+            try:
+                for rec in records:
+                    if rec.status == "done":
+                        continue
+                    current = rec
+                    target = "white" if rec.kind == REFERENCE else "sample"
+                    if target != present:
+                        self.devices.present(target)
+                        present = target
                     self._run_step(journal, rec, exposure, iso)
-                except KeyboardInterrupt:
-                    self.devices.stop_motion()
-                    journal.log("warning", "interrupted by the operator", rec.step)
-                    raise SafetyStop(
-                        f"interrupted at step {rec.step}: all axes stopped, torque on; "
-                        f"continue with `gonio resume {self.folder.path}`"
-                    ) from None
-                except GonioError as exc:
-                    journal.log("error", str(exc), rec.step)
-                    raise
-                done += 1
-                if self.progress:
-                    self.progress(done, total, rec)
+                    done += 1
+                    if self.progress:
+                        self.progress(done, total, rec)
+            except KeyboardInterrupt:
+                self.devices.stop_motion()
+                where = current.step if current else None
+                journal.log("warning", "interrupted by the operator", where)
+                raise SafetyStop(
+                    f"interrupted at step {where}: all axes stopped, torque on; "
+                    f"continue with `gonio resume {self.folder.path}`"
+                ) from None
+            except GonioError as exc:
+                journal.log("error", str(exc), current.step if current else None)
+                raise
             return journal.counts()
 
     def _run_step(self, journal: Journal, rec: StepRecord, exposure_s: float, iso: int) -> None:
-        journal.mark_started(rec.step)
+        with self.devices.host_work():
+            journal.mark_started(rec.step)
         readback = self.devices.move_to(rec.joints_cmd)
         seed_base = self.folder.info.seed * 1_000_003 + rec.step * 17
         name = frame_name(rec.step)
@@ -254,16 +263,19 @@ class CaptureEngine:
             try:
                 with atomic_target(final) as tmp:
                     self.devices.capture(tmp, exposure_s, iso, seed_base + attempt)
-                    if attempt < retries and self.saturated(tmp):
+                    with self.devices.host_work():
+                        clipped = attempt < retries and self.saturated(tmp)
+                    if clipped:
                         raise _Retake()
             except _Retake:
                 exposure_s /= 4.0
                 continue
             break
-        journal.mark_done(
-            rec.step, frame=name, sha256=sha256_file(final), joints_read=readback,
-            exposure_s=exposure_s, iso=iso, device_time_s=self.devices.device_time_s(),
-        )
+        with self.devices.host_work():
+            journal.mark_done(
+                rec.step, frame=name, sha256=sha256_file(final), joints_read=readback,
+                exposure_s=exposure_s, iso=iso, device_time_s=self.devices.device_time_s(),
+            )
 
 
 class _Retake(Exception):

@@ -1,0 +1,144 @@
+"""End to end on the simulated rig: real SDK on a pty, real DNG files through rawpy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from acquisition import api
+from acquisition.cli import main
+from acquisition.journal import Journal
+from acquisition.session import JOURNAL_FILE
+from acquisition.tables import IsotropicTable
+from acquisition.truth import relative_errors, truth_table
+from drivers.errors import SafetyStop, SessionError
+
+SMALL_PLAN = """
+format_version = 1
+name = "small"
+[sampling]
+kind = "grid"
+theta_i = { start = 0, stop = 60, step = 30 }
+theta_r = { start = 0, stop = 60, step = 30 }
+delta_phi = { start = 0, stop = 180, step = 90 }
+"""
+
+SPECULAR_PLAN = """
+format_version = 1
+name = "specular"
+[sampling]
+kind = "grid"
+theta_i = { start = 20, stop = 60, step = 20 }
+theta_r = { start = 20, stop = 60, step = 20 }
+delta_phi = { start = 90, stop = 180, step = 45 }
+"""
+
+
+@pytest.fixture
+def small_plan(tmp_path: Path) -> Path:
+    path = tmp_path / "plan-small.toml"
+    path.write_text(SMALL_PLAN)
+    return path
+
+
+def test_lambert_recovers_albedo_over_pi(rig_sim_path: Path, small_plan: Path, tmp_path: Path) -> None:
+    out = tmp_path / "lambert"
+    result = api.capture(rig_sim_path, small_plan, out, material="lambert:albedo=0.5", seed=3)
+    sweep = api.plan_sweep(small_plan, rig_sim_path)
+    # 27 candidates; both arms at the zenith (3) and θi = θr at Δφ = 0 (2) are in the shadow cone.
+    assert sweep.rejected_counts() == {"shadow": 5}
+    assert result.counts == {"done": 22 + 2}  # poses + white reference first and last
+    reduction = api.reduce(out)
+    table = IsotropicTable.load_h5(out / "brdf.h5")
+    measured = table.mean[table.count > 0]
+    rel = np.abs(measured - 0.5 / np.pi) / (0.5 / np.pi)
+    assert np.median(rel) <= 0.02
+    assert reduction.frames == 22
+    with h5py.File(out / "brdf.h5") as f:
+        assert f.attrs["units"] == "1/sr" and f.attrs["quantity"] == "brdf"
+        assert f["mean"].shape[-1] == 3 and f["count"].dtype == np.int64
+
+
+def test_ggx_maximum_is_specular(rig_sim_path: Path, tmp_path: Path) -> None:
+    plan = tmp_path / "plan-spec.toml"
+    plan.write_text(SPECULAR_PLAN)
+    out = tmp_path / "ggx"
+    api.capture(rig_sim_path, plan, out, material="ggx:albedo=0.2,alpha=0.3,f0=0.04", seed=4)
+    table = api.reduce(out).table
+    g = np.where(table.count > 0, table.mean[..., 1], -np.inf)
+    i, j, k = np.unravel_index(int(np.argmax(g)), g.shape)
+    ti, tr, dp = table.centers()
+    assert ti[i] == tr[j] and dp[k] == 180
+    assert np.median(relative_errors(table, truth_table(out))) < 0.03
+
+
+def test_interrupted_capture_resumes_to_identical_table(
+    rig_sim_path: Path, small_plan: Path, tmp_path: Path
+) -> None:
+    whole = tmp_path / "whole"
+    api.capture(rig_sim_path, small_plan, whole, material="lambert:albedo=0.3", seed=9)
+
+    cut = tmp_path / "cut"
+
+    def interrupt_at_ten(done: int, total: int, record: object) -> None:
+        if done == 10:
+            raise KeyboardInterrupt
+
+    with pytest.raises(SafetyStop, match="gonio resume"):
+        api.capture(rig_sim_path, small_plan, cut, material="lambert:albedo=0.3", seed=9,
+                    progress=interrupt_at_ten)
+    with Journal(cut / JOURNAL_FILE) as j:
+        assert j.counts()["done"] == 10
+    api.resume(cut)
+    with Journal(cut / JOURNAL_FILE) as j:
+        records = list(j.steps())
+    assert all(r.status == "done" for r in records)
+    assert len({r.frame for r in records}) == len(records)
+    a, b = api.reduce(whole).table, api.reduce(cut).table
+    np.testing.assert_array_equal(a.count, b.count)
+    np.testing.assert_array_equal(a.mean, b.mean)
+
+
+def test_capture_refuses_existing_session(rig_sim_path: Path, small_plan: Path, tmp_path: Path) -> None:
+    out = tmp_path / "exists"
+    out.mkdir()
+    (out / "keep.txt").write_text("operator data")
+    with pytest.raises(SessionError, match="already exists"):
+        api.capture(rig_sim_path, small_plan, out, material="lambert:albedo=0.5")
+    assert (out / "keep.txt").read_text() == "operator data"
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ({"--material": "chalk:x=1"}, "unknown material 'chalk:x=1'"),
+        ({"--plan": "missing.toml"}, "plan file missing.toml does not exist"),
+    ],
+)
+def test_cli_errors_are_one_line(
+    rig_sim_path: Path, small_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    override: dict[str, str], message: str,
+) -> None:
+    options = {"--rig": str(rig_sim_path), "--plan": str(small_plan),
+               "--out": str(tmp_path / "s"), "--material": "lambert:albedo=0.5", **override}
+    code = main(["capture", *[x for kv in options.items() for x in kv]])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert message in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_pose_outside_limits_is_refused(
+    rig_sim_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = tmp_path / "plan.toml"
+    plan.write_text(SMALL_PLAN.replace('kind = "grid"', 'kind = "list"\nposes = [[30, 89, 90]]')
+                    .split("theta_i =")[0])
+    code = main(["capture", "--rig", str(rig_sim_path), "--plan", str(plan),
+                 "--out", str(tmp_path / "s"), "--material", "lambert:albedo=0.5"])
+    err = capsys.readouterr().err
+    assert code != 0 and "no measurable pose" in err and err.count("\n") == 1

@@ -43,33 +43,52 @@ def halfdiff_rad_from_vectors(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(θh, θd, φd) in radians for unit light ``wi`` and view ``wo`` vectors (…, 3).
 
-    Same rotation as the reference reader, written without the φh/θh round trip through
-    trigonometry (cos and sin of φh and θh come straight from h), so it agrees with the
-    reference up to float rounding. Where h is the normal (h_x = h_y = 0) φh is taken as 0.
+    The reference's rotation of ``wi`` into the half-vector frame, with the rotation folded
+    into closed forms so that only three inverse trigonometric calls remain (h = wi + wo,
+    ρ = |h_xy|, a = wi_x·h_x + wi_y·h_y):
+
+    * cos θh = h_z / |h|, cos θd = (a + wi_z·h_z) / |h|;
+    * φd = atan2(|h|·(wi_y·h_x − wi_x·h_y), a·h_z − wi_z·ρ²) (both reference components
+      scaled by ρ·|h| > 0).
+
+    Agrees with the reference up to float rounding. Where h is the normal (ρ = 0) φh is taken
+    as 0, giving φd = atan2(wi_y, wi_x·cos θh).
     """
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
-    hx = wi[..., 0] + wo[..., 0]
-    hy = wi[..., 1] + wo[..., 1]
-    hz = wi[..., 2] + wo[..., 2]
-    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
-    rho = np.sqrt(hx * hx + hy * hy)  # |h_xy| before normalisation
+    shape = np.broadcast_shapes(wi.shape, wo.shape)[:-1]
+    i = np.ascontiguousarray(np.broadcast_to(wi, (*shape, 3)).reshape(-1, 3).T)
+    o = np.broadcast_to(wo, (*shape, 3)).reshape(-1, 3).T
+    ix, iy, iz = i
+    hx = ix + o[0]
+    hy = iy + o[1]
+    hz = iz + o[2]
+    rho2 = hx * hx
+    rho2 += hy * hy
+    norm = hz * hz
+    norm += rho2
+    np.sqrt(norm, out=norm)
+    a = ix * hx
+    a += iy * hy
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_h = hz / norm
-        sin_h = rho / norm
-        on_pole = rho == 0.0
-        cos_p = np.where(on_pole, 1.0, hx / rho)
-        sin_p = np.where(on_pole, 0.0, hy / rho)
-    theta_h = np.arccos(np.clip(cos_h, -1.0, 1.0))
-    # t = Rz(−φh)·wi, then d = Ry(−θh)·t
-    tx = wi[..., 0] * cos_p + wi[..., 1] * sin_p
-    ty = wi[..., 1] * cos_p - wi[..., 0] * sin_p
-    tz = wi[..., 2]
-    dx = tx * cos_h - tz * sin_h
-    dz = tz * cos_h + tx * sin_h
-    theta_d = np.arccos(np.clip(dz, -1.0, 1.0))
-    phi_d = np.arctan2(ty, dx)
-    return theta_h, theta_d, phi_d
+        cos_d = iz * hz
+        cos_d += a
+        cos_d /= norm
+        np.clip(cos_h, -1.0, 1.0, out=cos_h)
+        np.clip(cos_d, -1.0, 1.0, out=cos_d)
+        num = iy * hx
+        num -= ix * hy
+        num *= norm
+        den = a * hz
+        den -= iz * rho2
+        phi_d = np.arctan2(num, den)
+        pole = rho2 == 0.0
+        if pole.any():
+            phi_d[pole] = np.arctan2(iy[pole], ix[pole] * cos_h[pole])
+    theta_h = np.arccos(cos_h)
+    theta_d = np.arccos(cos_d)
+    return theta_h.reshape(shape), theta_d.reshape(shape), phi_d.reshape(shape)
 
 
 def halfdiff_rad_reference(
@@ -298,8 +317,10 @@ _INDEX_CHUNK = 1 << 16  # samples per step: temporaries stay in L2
 
 def flat_index_unclamped_into(
     th: np.ndarray, td: np.ndarray, pd: np.ndarray, out: np.ndarray, half_turn: float
-) -> None:
+) -> bool:
     """Unclamped flat MERL index of 1-D angles into ``out`` (int64): −1 outside, −2 NaN.
+
+    Returns True when every sample got a valid index (nothing marked).
 
     Angles in radians (``half_turn`` = π) or degrees (180). Same arithmetic as
     :func:`merl_indices_rad` (the reference's operation order) done in place on L2-sized
@@ -307,9 +328,11 @@ def flat_index_unclamped_into(
     checks are reductions over the chunk; only a chunk that fails them takes the general path.
     """
     quarter = half_turn / 2.0
+    degrees = half_turn == 180.0 and (THETA_H_BINS, THETA_D_BINS, PHI_D_BINS) == (90, 90, 180)
     size = min(_INDEX_CHUNK, th.size)
     buf_h, buf_d, buf_p = np.empty(size), np.empty(size), np.empty(size)
     buf_m = np.empty(size, dtype=bool)
+    all_valid = True
     with np.errstate(invalid="ignore"):
         for a in range(0, th.size, _INDEX_CHUNK):
             b = min(a + _INDEX_CHUNK, th.size)
@@ -325,24 +348,30 @@ def flat_index_unclamped_into(
             if not ok:
                 ih, idd, ip = _unclamped_indices(x, y, z, half_turn)
                 out[a:b] = np.where(ih < 0, ih, (ih * THETA_D_BINS + idd) * PHI_D_BINS + ip)
+                all_valid = all_valid and bool(ih.min(initial=0) >= 0)
                 continue
             k = b - a
             h, d, p, neg = buf_h[:k], buf_d[:k], buf_p[:k], buf_m[:k]
-            np.divide(x, quarter, out=h)
-            h *= THETA_H_BINS
-            h *= THETA_H_BINS
-            np.sqrt(h, out=h)
-            np.floor(h, out=h)
-            np.minimum(h, THETA_H_BINS - 1, out=h)
-            np.divide(y, quarter, out=d)
-            d *= THETA_D_BINS
-            np.floor(d, out=d)
-            np.minimum(d, THETA_D_BINS - 1, out=d)
             np.less(z, 0.0, out=neg)
             np.multiply(neg, half_turn, out=p)
             p += z
-            p /= half_turn
-            p *= PHI_D_BINS
+            if degrees:
+                # One bin per degree in θd and φd, θh = 90·(k/90)²: no divisions needed.
+                np.multiply(x, float(THETA_H_BINS), out=h)
+                np.floor(y, out=d)
+            else:
+                np.divide(x, quarter, out=h)
+                h *= THETA_H_BINS
+                h *= THETA_H_BINS
+                np.divide(y, quarter, out=d)
+                d *= THETA_D_BINS
+                np.floor(d, out=d)
+                p /= half_turn
+                p *= PHI_D_BINS
+            np.sqrt(h, out=h)
+            np.floor(h, out=h)
+            np.minimum(h, THETA_H_BINS - 1, out=h)
+            np.minimum(d, THETA_D_BINS - 1, out=d)
             np.floor(p, out=p)
             np.minimum(p, PHI_D_BINS - 1, out=p)
             h *= THETA_D_BINS
@@ -350,6 +379,7 @@ def flat_index_unclamped_into(
             h *= PHI_D_BINS
             h += p
             out[a:b] = h
+    return all_valid
 
 
 def merl_indices(

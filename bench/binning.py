@@ -10,6 +10,11 @@ a point light, row by row, frame by frame) and reports samples per second on one
   (:meth:`MerlTable.add_vectors`, what image-based reduction calls per frame);
 * ``binning_bincount_baseline_msamples_per_s``: the straightforward numpy baseline measured in
   the same run (index of the whole batch, then seven ``np.bincount`` calls).
+
+Where the time goes (pure numpy, one core): the seven scatter-adds (count, Σ, Σ² per channel)
+cost ~20 ns per sample whatever the trick (``np.add.at`` and ``np.bincount`` are equally fast;
+complex packing or run-length ``reduceat`` do not help), so numpy tops out near 30–35 M/s.
+The vector path is bounded by three inverse trigonometric calls (~17 ns each, scalar libm).
 """
 
 from __future__ import annotations

@@ -48,7 +48,9 @@ class BinAccumulator:
         self.n_dropped_range = 0
 
     # ------------------------------------------------------------------ accumulation
-    def add_flat(self, flat_index: np.ndarray, values: np.ndarray) -> int:
+    def add_flat(
+        self, flat_index: np.ndarray, values: np.ndarray, *, index_valid: bool = False
+    ) -> int:
         """Add samples by flat bin index; returns how many were kept.
 
         Parameters
@@ -57,6 +59,8 @@ class BinAccumulator:
             (N,) integer bin indices in C order; negative entries drop the sample.
         values
             (N, channels) sample values.
+        index_valid
+            The caller guarantees every index lies in [0, n_bins) (skips that check).
         """
         idx = np.asarray(flat_index).reshape(-1)
         vals = np.asarray(values, dtype=np.float64).reshape(idx.size, self.channels)
@@ -67,7 +71,7 @@ class BinAccumulator:
         # Fast path: reductions only (no per-sample temporaries) when every sample is good.
         with np.errstate(over="ignore", invalid="ignore"):
             all_finite = bool(np.isfinite(vals.sum()))
-        if all_finite and idx.min() >= 0 and idx.max() < self.n_bins:
+        if all_finite and (index_valid or (idx.min() >= 0 and idx.max() < self.n_bins)):
             self._accumulate(idx, vals)
             return idx.size
         with np.errstate(invalid="ignore", over="ignore"):

@@ -64,13 +64,14 @@ class MerlTable:
             b = min(a + CHUNK, n)
             i, o, flat = wi[a:b], wo[a:b], idx[: b - a]
             th, td, pd = halfdiff_rad_from_vectors(i, o)
-            flat_index_unclamped_into(th, td, pd, flat, np.pi)
+            valid = flat_index_unclamped_into(th, td, pd, flat, np.pi)
             if not (i[:, 2].min() > 0.0 and o[:, 2].min() > 0.0):  # False on NaN too
+                valid = False
                 below = (i[:, 2] <= 0.0) | (o[:, 2] <= 0.0)
                 given_nan = np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)
                 # wi = −wo has no half vector (NaN angles): still below the horizon.
                 flat[below & ~given_nan] = DROP_OUT_OF_RANGE
-            kept += self._acc.add_flat(flat, rgb[a:b])
+            kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
         return kept
 
     def add_angles(
@@ -127,8 +128,8 @@ class MerlTable:
         for a in range(0, th.size, CHUNK):
             b = min(a + CHUNK, th.size)
             flat = idx[: b - a]
-            flat_index_unclamped_into(th[a:b], td[a:b], pd[a:b], flat, 180.0)
-            kept += self._acc.add_flat(flat, rgb[a:b])
+            valid = flat_index_unclamped_into(th[a:b], td[a:b], pd[a:b], flat, 180.0)
+            kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
         return kept
 
     def add_flat(self, flat_index: np.ndarray, rgb: np.ndarray) -> int:

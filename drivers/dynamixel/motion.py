@@ -1,0 +1,278 @@
+"""Checked, synchronous multi-axis moves on one or more servo buses.
+
+:meth:`MotionController.move_to` is the only way gonio moves the rig:
+
+1. the guard (the planner's limits / collision / shadow check) sees the targets first and may
+   refuse them by raising; a controller cannot be built without one;
+2. every target is converted with the axis' soft limits (:class:`~drivers.errors.LimitError`,
+   nothing sent);
+3. torque and latched hardware errors are checked (one sync read per bus);
+4. ONE sync write per bus sends all goals;
+5. one sync read per bus and control cycle polls goal, moving and present position until every
+   axis is within ``tolerance_ticks`` of its goal with ``moving == 0`` — the move is confirmed by
+   readback, never by acknowledgement; a goal that reads back different is sent once more, and
+   if the servo still holds another value (its EEPROM position limits clamp it) the move stops
+   with a :class:`~drivers.errors.LimitError`;
+6. on a hardware error, a timeout or Ctrl-C, all axes stop at once (goal := present, torque
+   stays on) before the error propagates; :meth:`MotionController.stop` called from another
+   thread ends an in-flight move with :class:`~drivers.errors.SafetyStop`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+
+from drivers.dynamixel.axis import Axis
+from drivers.dynamixel.bus import Addr, ServoBus
+from drivers.dynamixel.codes import MotionTimeoutError, TorqueOffError
+from drivers.errors import ConfigError, GonioError, LimitError, SafetyStop
+
+Guard = Callable[[Mapping[str, float]], object]
+
+
+class MotionController:
+    """Moves named axes, each driven by one servo on a :class:`ServoBus`.
+
+    Parameters
+    ----------
+    axes:
+        The axes (names unique).
+    buses:
+        ``{axis name: ServoBus}``, or one bus for every axis.
+    guard:
+        Called as ``guard({axis: deg})`` with exactly the requested targets before anything is
+        sent; it refuses a move by raising (``LimitError``, ``CollisionError``).
+    tolerance_ticks:
+        How close (ticks) the read-back position must be to the goal.
+    poll_s:
+        Pause between control cycles (s), passed to ``sleep``.
+    sleep:
+        Pause function for polling (``time.sleep``; a simulated clock's may be given).
+    monotonic:
+        Clock for timeouts (host s).
+    """
+
+    def __init__(
+        self,
+        axes: Iterable[Axis],
+        buses: Mapping[str, ServoBus] | ServoBus,
+        guard: Guard,
+        *,
+        tolerance_ticks: int = 3,
+        poll_s: float = 0.01,
+        sleep: Callable[[float], None] = time.sleep,
+        monotonic: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if guard is None or not callable(guard):
+            raise ConfigError(
+                "MotionController needs a guard: a callable that checks targets (limits, "
+                "collisions, shadowing) before any move is sent"
+            )
+        self._axes: dict[str, Axis] = {}
+        for axis in axes:
+            if axis.name in self._axes:
+                raise ConfigError(f"axis '{axis.name}' is defined twice")
+            self._axes[axis.name] = axis
+        if isinstance(buses, ServoBus):
+            buses = dict.fromkeys(self._axes, buses)
+        missing = [n for n in self._axes if n not in buses]
+        if missing:
+            raise ConfigError(f"no servo bus given for axes {missing}")
+        self._bus: dict[str, ServoBus] = {n: buses[n] for n in self._axes}
+        seen: dict[tuple[int, int], str] = {}
+        for name, axis in self._axes.items():
+            key = (id(self._bus[name]), axis.servo_id)
+            if key in seen:
+                raise ConfigError(f"axes '{seen[key]}' and '{name}' both use servo "
+                                  f"{axis.servo_id} on the same bus")
+            seen[key] = name
+            self._bus[name].label(axis.servo_id, name)
+        self.guard = guard
+        self._stops = 0  # bumped by stop(): an in-flight move_to ends with SafetyStop
+        # Held by stop() and around every goal write of move_to, so that a move never re-sends
+        # goals after a stop from another thread.
+        self._goal_lock = threading.RLock()
+        self.tolerance_ticks = tolerance_ticks
+        self.poll_s = poll_s
+        self._sleep = sleep
+        self._monotonic = monotonic
+
+    @property
+    def axes(self) -> dict[str, Axis]:
+        """``{name: Axis}``."""
+        return dict(self._axes)
+
+    def _groups(self, names: Iterable[str]) -> dict[ServoBus, list[str]]:
+        groups: dict[ServoBus, list[str]] = {}
+        for n in names:
+            groups.setdefault(self._bus[n], []).append(n)
+        return groups
+
+    # ------------------------------------------------------------------ set-up verbs
+    def apply_profiles(self) -> None:
+        """Write each axis' profile velocity/acceleration to its servo."""
+        for name, axis in self._axes.items():
+            self._bus[name].set_profile(axis.servo_id, axis.profile_velocity,
+                                        axis.profile_acceleration)
+
+    def set_torque(self, on: bool, names: Iterable[str] | None = None) -> None:
+        """Torque on/off for the named axes (all if None)."""
+        for bus, group in self._groups(names or self._axes).items():
+            bus.set_torque([self._axes[n].servo_id for n in group], on)
+
+    def positions_deg(self, names: Iterable[str] | None = None) -> dict[str, float]:
+        """Read-back positions (deg), one sync read per bus."""
+        out: dict[str, float] = {}
+        for bus, group in self._groups(names or self._axes).items():
+            ticks = bus.read_positions([self._axes[n].servo_id for n in group])
+            for n in group:
+                out[n] = self._axes[n].ticks_to_deg(ticks[self._axes[n].servo_id])
+        return out
+
+    # ------------------------------------------------------------------ moves
+    def move_to(self, targets_deg: Mapping[str, float], timeout_s: float = 30.0
+                ) -> dict[str, float]:
+        """Move the named axes to ``targets_deg`` together; return the read-back degrees.
+
+        Raises
+        ------
+        ConfigError
+            An unknown axis name.
+        LimitError, CollisionError
+            From the guard or the soft limits; nothing was sent.
+        TorqueOffError, ServoHardwareError
+            Before the move (nothing sent) or during it (all axes stopped).
+        MotionTimeoutError
+            The axes did not settle within ``timeout_s`` (all axes stopped).
+        """
+        targets = {str(k): float(v) for k, v in targets_deg.items()}
+        unknown = sorted(set(targets) - set(self._axes))
+        if unknown:
+            raise ConfigError(f"unknown axes {unknown}; the rig has {sorted(self._axes)}")
+        if not targets:
+            return {}
+        self.guard(dict(targets))
+        goals = {n: self._axes[n].deg_to_ticks(d) for n, d in targets.items()}
+        groups = self._groups(targets)
+        self._check_ready(groups)
+        generation = self._stops
+        try:
+            with self._goal_lock:
+                self._check_generation(generation, goals)
+                for bus, names in groups.items():
+                    bus.write_goals({self._axes[n].servo_id: goals[n] for n in names})
+            return self._settle(groups, goals, timeout_s, generation)
+        except SafetyStop:
+            raise  # stop() already ran
+        except (GonioError, KeyboardInterrupt):
+            self._stop_quietly()
+            raise
+
+    def _check_ready(self, groups: Mapping[ServoBus, list[str]]) -> None:
+        for bus, names in groups.items():
+            ids = {self._axes[n].servo_id: n for n in names}
+            state = bus.read_safety(ids)
+            for sid, (torque, bits) in state.items():
+                if bits:
+                    raise bus.hardware_error_of(sid)
+                if not torque:
+                    raise TorqueOffError(
+                        f"{bus.describe(sid)}: torque is off, so the axis cannot move; run "
+                        f"`gonio torque on` (nothing was sent)"
+                    )
+
+    def _settle(self, groups: Mapping[ServoBus, list[str]], goals: Mapping[str, int],
+                timeout_s: float, generation: int) -> dict[str, float]:
+        deadline = self._monotonic() + timeout_s
+        resent: set[str] = set()
+        tol = self.tolerance_ticks
+        while True:
+            self._check_generation(generation, goals)
+            done = True
+            readback: dict[str, int] = {}
+            lagging: list[str] = []
+            for bus, names in groups.items():
+                samples = bus.read_motion([self._axes[n].servo_id for n in names])
+                again: dict[int, int] = {}
+                for n in names:
+                    axis, s = self._axes[n], samples[self._axes[n].servo_id]
+                    readback[n] = s.position
+                    if s.goal != goals[n]:
+                        if n in resent:
+                            raise LimitError(
+                                f"{bus.describe(axis.servo_id)}: the servo holds goal {s.goal} "
+                                f"instead of {goals[n]} ticks; its Min/Max Position Limit "
+                                f"(EEPROM 52/48) clamps it — widen them or narrow the axis "
+                                f"limits in the rig file"
+                            )
+                        again[axis.servo_id] = goals[n]
+                        resent.add(n)
+                    if s.moving or abs(s.position - goals[n]) > tol:
+                        done = False
+                        lagging.append(f"{n} at {axis.ticks_to_deg(s.position):.2f}° "
+                                       f"(goal {axis.ticks_to_deg(goals[n]):.2f}°)")
+                if again:
+                    with self._goal_lock:
+                        self._check_generation(generation, goals)
+                        bus.write_goals(again)
+                    done = False
+            if done:
+                return {n: self._axes[n].ticks_to_deg(t) for n, t in readback.items()}
+            if self._monotonic() > deadline:
+                raise MotionTimeoutError(
+                    f"move not finished after {timeout_s:g} s: {', '.join(lagging)}; all axes "
+                    f"stopped — check for an obstruction, or raise the profile velocity"
+                )
+            self._sleep(self.poll_s)
+
+    def _check_generation(self, generation: int, goals: Mapping[str, int]) -> None:
+        if self._stops != generation:
+            raise SafetyStop(
+                f"move of {', '.join(sorted(goals))} was stopped (goal := present, torque on); "
+                f"run the move again to continue"
+            )
+
+    def stop(self) -> dict[str, float]:
+        """Stop every axis where it is (goal := present, torque stays on); return degrees.
+
+        All positions are read first (one sync read per bus), then all goals written (one sync
+        write per bus), so the axes stop within one control cycle of each other.
+        """
+        with self._goal_lock:
+            self._stops += 1
+            return self._stop_all()
+
+    def _stop_all(self) -> dict[str, float]:
+        groups = self._groups(self._axes)
+        present: dict[ServoBus, dict[int, int]] = {}
+        errors: list[Exception] = []
+        for bus, names in groups.items():
+            try:
+                # No Alert check: a servo in hardware error still reports where it is.
+                raw = bus.sync_read([self._axes[n].servo_id for n in names],
+                                    Addr.PRESENT_POSITION, 4, check_alert=False)
+            except GonioError as exc:
+                errors.append(exc)
+                continue
+            present[bus] = {i: int.from_bytes(b, "little", signed=True) for i, b in raw.items()}
+        for bus, ticks in present.items():
+            try:
+                bus.write_goals(ticks)
+            except GonioError as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+        out = {}
+        for bus, names in groups.items():
+            for n in names:
+                if bus in present:
+                    out[n] = self._axes[n].ticks_to_deg(present[bus][self._axes[n].servo_id])
+        return out
+
+    def _stop_quietly(self) -> None:
+        with contextlib.suppress(GonioError, KeyboardInterrupt):
+            self.stop()
+

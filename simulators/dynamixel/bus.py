@@ -1,0 +1,299 @@
+"""A simulated Dynamixel bus behind a real pseudo-terminal.
+
+``SimServoBus(ids).start()`` returns a path such as ``/dev/pts/7`` that any client (the
+unmodified ``dynamixel_sdk``, a terminal program) opens like a USB adapter. One thread runs a
+``select`` loop on the pty master and a wake-up pipe: it parses instruction packets, lets the
+:class:`~simulators.dynamixel.responder.Responder` execute them, and writes the status packets
+after each servo's Return Delay Time (plus injected delay), in order. ``stop()`` writes to the
+wake-up pipe, so shutting down costs microseconds, not a polling timeout.
+
+A new instruction cancels replies still waiting to be sent (the master has moved on), so a reply
+delayed past the client's timeout never lands in the next transaction.
+
+By default the servos answer whatever baud rate the client sets on the pty (the SDK's example
+programs use other rates than a rig's); ``strict_baud=True`` makes a servo deaf unless the
+client's termios speed equals the servo's Baud Rate register, like a real bus.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import select
+import signal
+import sys
+import termios
+import threading
+import time
+import tty
+from collections import Counter, deque
+from collections.abc import Iterable, Mapping
+
+from drivers.errors import ConfigError
+from simulators.clock import SimClock
+from simulators.dynamixel import control_table as ct
+from simulators.dynamixel.faults import Fault, WireFaults, parse_faults, wire_faults_for
+from simulators.dynamixel.protocol import Instruction, Packet, PacketParser
+from simulators.dynamixel.responder import Responder
+from simulators.dynamixel.servo import SimServo
+
+#: A partial packet older than this (host s) is discarded when new bytes arrive.
+_PARTIAL_TIMEOUT_S = 0.1
+
+_TERMIOS_SPEEDS = {
+    getattr(termios, f"B{rate}"): rate
+    for rate in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+                 1000000, 1152000, 2000000, 2500000, 3000000, 3500000, 4000000)
+    if hasattr(termios, f"B{rate}")
+}
+_BAUD_INDEX = {rate: index for index, rate in ct.BAUD_RATES.items()}
+
+
+class SimServoBus:
+    """Simulated X-series servos on one pty.
+
+    Parameters
+    ----------
+    ids:
+        Servo IDs (1–252; 0 is allowed too), each an XM430-W350 at factory defaults.
+    baud:
+        Baud rate set in every servo's Baud Rate register (57600, 115200, 1M, 2M, 3M, 4M, ...).
+    clock:
+        Simulated clock (shared by a rig); a real-time one if None.
+    faults:
+        Fault specs (strings or :class:`~simulators.dynamixel.faults.Fault`), see
+        :mod:`simulators.dynamixel.faults`.
+    seed:
+        Seed of the fault RNG.
+    strict_baud:
+        Servos ignore packets when the client's pty speed differs from their baud rate.
+    positions:
+        Initial shaft position (ticks) per ID; 2048 (centre) otherwise.
+
+    Attributes
+    ----------
+    servos:
+        ``{id: SimServo}`` keyed by the ID each servo was created with.
+    stats:
+        Counters: ``packets`` received, ``replies`` sent, ``dropped``, ``corrupted``,
+        ``cancelled`` (replies pre-empted by a newer instruction), ``overflow``.
+    instructions:
+        Instructions received, by name (``"SYNC_WRITE"``, ``"READ"``, ...).
+    """
+
+    def __init__(
+        self,
+        ids: Iterable[int],
+        *,
+        baud: int = 57600,
+        clock: SimClock | None = None,
+        faults: Iterable[str | Fault] = (),
+        seed: int = 0,
+        strict_baud: bool = False,
+        positions: Mapping[int, float] | None = None,
+    ) -> None:
+        id_list = [int(i) for i in ids]
+        if not id_list:
+            raise ConfigError("a simulated servo bus needs at least one servo ID")
+        bad = [i for i in id_list if not 0 <= i <= 252]
+        if bad:
+            raise ConfigError(f"servo IDs must be within 1..252, got {bad}")
+        if len(set(id_list)) != len(id_list):
+            raise ConfigError(f"servo IDs must be unique, got {id_list}")
+        if baud not in _BAUD_INDEX:
+            raise ConfigError(
+                f"baud rate {baud} is not one an X-series servo supports; "
+                f"use one of {sorted(_BAUD_INDEX)}"
+            )
+        self.baud = baud
+        self.clock = clock if clock is not None else SimClock()
+        self.faults = parse_faults(faults)
+        unknown = sorted({f.servo_id for f in self.faults if f.servo_id is not None} - set(id_list))
+        if unknown:
+            raise ConfigError(f"fault specs name servo IDs {unknown} that are not on the bus "
+                              f"{sorted(id_list)}")
+        self.strict_baud = strict_baud
+        self._lock = threading.RLock()
+        self._rng = random.Random(seed)
+        positions = positions or {}
+        self.servos: dict[int, SimServo] = {
+            i: SimServo(
+                i, self.clock, baud_index=_BAUD_INDEX[baud],
+                position_ticks=positions.get(i, 2048.0),
+                faults=tuple(f for f in self.faults if f.servo_id == i and f.kind not in
+                             ("drop", "corrupt", "delay")),
+                lock=self._lock,
+            )
+            for i in id_list
+        }
+        self._wire: dict[SimServo, WireFaults] = {
+            servo: wire_faults_for(self.faults, i) for i, servo in self.servos.items()}
+        self._responder = Responder(list(self.servos.values()),
+                                    self._hears if strict_baud else None)
+        self.stats = dict(packets=0, replies=0, dropped=0, corrupted=0, cancelled=0, overflow=0)
+        self.instructions: Counter[str] = Counter()
+        self._master = self._slave = self._wake_r = self._wake_w = -1
+        self._thread: threading.Thread | None = None
+        self._port: str | None = None
+        self._client_baud: int | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def port(self) -> str:
+        """The pty slave path clients open (only while started)."""
+        if self._port is None:
+            raise RuntimeError("the simulated servo bus is not started")
+        return self._port
+
+    def start(self) -> str:
+        """Open the pty, start the responder thread, return the slave path."""
+        if self._thread is not None:
+            return self.port
+        self._master, self._slave = os.openpty()
+        # Raw mode: no echo, no CR/LF translation, 8 bits (clients set it again; harmless).
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self._wake_r, self._wake_w = os.pipe()
+        self._port = os.ttyname(self._slave)
+        self._thread = threading.Thread(
+            target=self._run, name=f"sim-servo-bus {self._port}", daemon=True)
+        self._thread.start()
+        return self._port
+
+    def stop(self) -> None:
+        """Stop the thread and close the pty (the slave path disappears)."""
+        if self._thread is None:
+            return
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        self._thread.join()
+        self._thread = None
+        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._master = self._slave = self._wake_r = self._wake_w = -1
+        self._port = None
+
+    def __enter__(self) -> SimServoBus:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ loop
+    def _hears(self, servo: SimServo) -> bool:
+        return self._client_baud is None or self._client_baud == servo.baud_rate
+
+    def _read_client_baud(self) -> int | None:
+        try:
+            return _TERMIOS_SPEEDS.get(termios.tcgetattr(self._slave)[5])
+        except termios.error:
+            return None
+
+    def _run(self) -> None:
+        parser = PacketParser()
+        pending: deque[tuple[float, bytes]] = deque()
+        partial_since = 0.0
+        master, wake = self._master, self._wake_r
+        while True:
+            timeout = max(0.0, pending[0][0] - time.monotonic()) if pending else None
+            readable, _, _ = select.select([master, wake], [], [], timeout)
+            if wake in readable:
+                return
+            if master in readable:
+                try:
+                    data = os.read(master, 4096)
+                except (BlockingIOError, InterruptedError):
+                    data = b""
+                except OSError:  # no slave open at all; cannot happen while we hold ours
+                    return
+                now = time.monotonic()
+                if data:
+                    if parser.pending and now - partial_since > _PARTIAL_TIMEOUT_S:
+                        parser.clear()
+                    for pkt in parser.feed(data):
+                        self.stats["packets"] += 1
+                        if pending:
+                            self.stats["cancelled"] += len(pending)
+                            pending.clear()
+                        self._schedule(pkt, now, pending)
+                    if not parser.pending:
+                        partial_since = 0.0
+                    elif not partial_since:
+                        partial_since = now
+            self._flush(pending)
+
+    def _schedule(self, pkt: Packet, now: float, pending: deque[tuple[float, bytes]]) -> None:
+        try:
+            name = Instruction(pkt.instruction).name
+        except ValueError:
+            name = f"0x{pkt.instruction:02X}"
+        self.instructions[name if pkt.crc_ok else "BAD_CRC"] += 1
+        with self._lock:
+            if self.strict_baud:
+                self._client_baud = self._read_client_baud()
+            replies = self._responder.handle(pkt)
+            due = now
+            for servo, raw in replies:
+                wf = self._wire[servo]
+                drop = self._rng.random() < wf.drop
+                corrupt = self._rng.random() < wf.corrupt
+                due += servo.return_delay_s + wf.delay_s
+                if drop:
+                    self.stats["dropped"] += 1
+                    continue
+                if corrupt:
+                    self.stats["corrupted"] += 1
+                    raw = raw[:-1] + bytes([raw[-1] ^ 0xFF])
+                pending.append((due, raw))
+
+    def _flush(self, pending: deque[tuple[float, bytes]]) -> None:
+        now = time.monotonic()
+        out = bytearray()
+        while pending and pending[0][0] <= now:
+            out += pending.popleft()[1]
+            self.stats["replies"] += 1
+        while out:
+            try:
+                n = os.write(self._master, out)
+            except BlockingIOError:
+                self.stats["overflow"] += 1  # nobody reads the port: the bytes are lost
+                return
+            del out[:n]
+
+
+def serve_servos_forever(
+    ids: Iterable[int],
+    baud: int = 57600,
+    time_scale: float = 1.0,
+    faults: Iterable[str | Fault] = (),
+    seed: int = 0,
+) -> int:
+    """Run a simulated bus in the foreground until SIGINT or SIGTERM; return 0.
+
+    The first line on stdout is the device path (flushed), so a script can read it and start a
+    client; a human-readable banner goes to stderr. Must run in the main thread (signals).
+    """
+    stop = threading.Event()
+
+    def _handler(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, _handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        clock = SimClock(time_scale)
+        with SimServoBus(ids, baud=baud, clock=clock, faults=faults, seed=seed) as bus:
+            print(bus.port, flush=True)
+            print(
+                f"simulating XM430-W350 servos {sorted(bus.servos)} at {baud} baud on "
+                f"{bus.port} (time scale {time_scale:g}); Ctrl-C to stop",
+                file=sys.stderr, flush=True,
+            )
+            while not stop.is_set():
+                stop.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import acquisition.merl  # noqa: F401  (registers the merl:PATH material)
 from drivers.errors import SessionError
 from simulators.materials import material_from_spec
 

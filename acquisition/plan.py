@@ -7,7 +7,6 @@ useful, and in what order to take them, is the planner's job (:mod:`acquisition.
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from . import sampling
 from .config import Section, load_toml
 from .kinematics import Pose
 
@@ -82,57 +82,106 @@ class PlanSpec:
     shadow_cone_deg: float | None = None
     max_elevation_deg: float | None = None
     raw: dict[str, Any] = field(default_factory=dict)
+    reciprocal: str = "once"
+    """"once": a pose and its reciprocal (θi ↔ θr) are measured once; "both": each."""
 
     def poses(self) -> list[Pose]:
         return list(self.candidate_poses)
 
+    @property
+    def mirror_delta_phi(self) -> bool:
+        """True when the table folds Δφ into [0°, 180°], so Δφ and −Δφ measure the same bin."""
+        edges = self.table.delta_phi_edges
+        return bool(edges[-1] - edges[0] <= 270.0)
 
-Sampler = Callable[[Section], tuple[list[Pose], TableSpec]]
+
+Sampler = Callable[[Section], tuple[np.ndarray, TableSpec]]
+
+COMMON_KEYS = {"kind", "reciprocal", "bin_deg"}
+"""Keys every ``[sampling]`` table may have besides its kind's own."""
+
+RECIPROCAL_CHOICES = ("once", "both")
+"""``[sampling] reciprocal``: measure a pose and its reciprocal (θi ↔ θr) once or both."""
 
 
-def _grid(sec: Section) -> tuple[list[Pose], TableSpec]:
-    sec.check_keys({"kind", "theta_i", "theta_r", "delta_phi"})
+def _binned_table(sec: Section, default_deg: float = 5.0) -> TableSpec:
+    """A table of ``bin_deg`` bins on θi, θr ∈ [0°, 90°] and Δφ ∈ [0°, 180°]."""
+    step = sec.number("bin_deg", default_deg, min=0.1, max=90)
+    edges = np.unique(np.clip(np.arange(0, 90 + step, step), 0, 90))
+    return TableSpec(edges, edges.copy(), np.unique(np.clip(np.arange(0, 180 + step, step), 0, 180)))
+
+
+def _grid(sec: Section) -> tuple[np.ndarray, TableSpec]:
+    sec.check_keys(COMMON_KEYS | {"theta_i", "theta_r", "delta_phi"})
     ti = parse_range(sec, "theta_i", 0, 90)
     tr = parse_range(sec, "theta_r", 0, 90)
     dp = parse_range(sec, "delta_phi", -180, 360)
-    poses = [
-        Pose(float(a), float(b), float(c))
-        for a in ti.values() for b in tr.values() for c in dp.values()
-    ]
+    poses = sampling.grid(ti.values(), tr.values(), dp.values())
+    if "bin_deg" in sec:
+        return poses, _binned_table(sec)
     return poses, TableSpec(ti.edges(), tr.edges(), dp.edges())
 
 
-def _list(sec: Section) -> tuple[list[Pose], TableSpec]:
-    sec.check_keys({"kind", "poses", "csv", "bin_deg"})
-    rows: list[list[float]] = []
+def _list(sec: Section) -> tuple[np.ndarray, TableSpec]:
+    sec.check_keys(COMMON_KEYS | {"poses", "csv"})
     if "csv" in sec:
         csv_path = Path(sec.source).parent / sec.get("csv", str)
         try:
-            with open(csv_path, newline="") as fh:
-                for lineno, row in enumerate(csv.reader(fh), 1):
-                    if not row or row[0].lstrip().startswith("#") or row[0].strip() == "theta_i":
-                        continue
-                    try:
-                        rows.append([float(x) for x in row[:3]])
-                    except ValueError:
-                        problem = f"{csv_path}:{lineno}: expected 3 numbers, got {row}"
-                        raise sec.error("csv", problem) from None
+            poses = sampling.read_pose_csv(csv_path)
+        except ValueError as exc:
+            raise sec.error("csv", str(exc)) from None
         except OSError as exc:
             raise sec.error("csv", f"cannot read {csv_path} ({exc.strerror})") from None
     else:
-        rows = [list(map(float, p)) for p in sec.get("poses", list)]
-    if any(len(r) != 3 for r in rows) or not rows:
+        rows = sec.get("poses", list)
+        if not all(isinstance(r, list) and len(r) == 3 for r in rows):
+            raise sec.error("poses", "must list [theta_i, theta_r, delta_phi] triples in degrees")
+        poses = np.array(rows, dtype=float).reshape(-1, 3)
+    if not len(poses):
         raise sec.error("poses", "must list [theta_i, theta_r, delta_phi] triples in degrees")
-    poses = [Pose(*r) for r in rows]
-    step = sec.number("bin_deg", 5.0, min=0.1)
-    return poses, TableSpec(
-        np.arange(0, 90 + step / 2, step), np.arange(0, 90 + step / 2, step),
-        np.arange(0, 180 + step / 2, step),
+    return poses, _binned_table(sec)
+
+
+def _uniform(sec: Section) -> tuple[np.ndarray, TableSpec]:
+    sec.check_keys(COMMON_KEYS | {"light_count", "camera_count", "max_theta_deg"})
+    poses = sampling.uniform_solid_angle(
+        sec.integer("light_count", min=1, max=1000),
+        sec.integer("camera_count", min=1, max=100000),
+        sec.number("max_theta_deg", 90.0, min=1, max=90),
     )
+    return poses, _binned_table(sec)
 
 
-SAMPLERS: dict[str, Sampler] = {"grid": _grid, "list": _list}
-"""``[sampling] kind`` → function expanding the table into candidate poses and table bins."""
+def _merl(sec: Section) -> tuple[np.ndarray, TableSpec]:
+    sec.check_keys(COMMON_KEYS | {"theta_h_count", "theta_d_count", "phi_d_count"})
+    poses = sampling.merl_half_diff(
+        sec.integer("theta_h_count", 90, min=1, max=90),
+        sec.integer("theta_d_count", 90, min=1, max=90),
+        sec.integer("phi_d_count", 180, min=1, max=180),
+    )
+    return poses, _binned_table(sec)
+
+
+def _specular(sec: Section) -> tuple[np.ndarray, TableSpec]:
+    sec.check_keys(COMMON_KEYS | {"theta_i", "step_deg", "min_step_deg", "spread", "max_theta_r_deg"})
+    ti = parse_range(sec, "theta_i", 0, 90)
+    step = sec.number("step_deg", 10.0, min=0.01, max=90)
+    min_step = sec.number("min_step_deg", step / 4, min=0.01, max=step)
+    poses = sampling.specular_refined(
+        ti.values(), step, min_step, spread=sec.number("spread", 2.0, min=0.0),
+        max_theta_r_deg=sec.number("max_theta_r_deg", 90.0, min=1, max=90),
+    )
+    return poses, _binned_table(sec)
+
+
+SAMPLERS: dict[str, Sampler] = {
+    "grid": _grid,
+    "list": _list,
+    "uniform": _uniform,
+    "merl": _merl,
+    "specular": _specular,
+}
+"""``[sampling] kind`` → function expanding the table into candidate poses (N, 3) and bins."""
 
 
 def load_plan(path: str | Path) -> PlanSpec:
@@ -148,7 +197,12 @@ def load_plan(path: str | Path) -> PlanSpec:
     kind = sampling.get("kind", str)
     if kind not in SAMPLERS:
         raise sampling.error("kind", f"unknown '{kind}' (known: {', '.join(SAMPLERS)})")
-    poses, table = SAMPLERS[kind](sampling)
+    reciprocal = sampling.get("reciprocal", str, "once")
+    if reciprocal not in RECIPROCAL_CHOICES:
+        raise sampling.error("reciprocal", f"must be one of {', '.join(RECIPROCAL_CHOICES)}, "
+                                           f"got '{reciprocal}'")
+    array, table = SAMPLERS[kind](sampling)
+    poses = [Pose(float(a), float(b), float(c)) for a, b, c in array]
     cons = top.section("constraints", {})
     cons.check_keys({"shadow_cone_deg", "max_elevation_deg"})
     cap = top.section("capture", {})
@@ -161,6 +215,7 @@ def load_plan(path: str | Path) -> PlanSpec:
         sampling=kind,
         candidate_poses=tuple(poses),
         table=table,
+        reciprocal=reciprocal,
         capture=CaptureSettings(
             exposure_s=cap.number("exposure_s", None, min=1e-6),
             iso=cap.integer("iso", None, min=1),

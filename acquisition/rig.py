@@ -6,6 +6,7 @@ is opened. Opening devices (real or simulated) is :mod:`acquisition.devices`' jo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,8 @@ from typing import Any
 from drivers.errors import ConfigError
 
 from .config import Section, load_toml
-from .kinematics import KINEMATICS, JointLimits, Kinematics
+from .kinematics import KINEMATICS, Kinematics
+from .kinematics.lightstage import LightStage
 
 RIG_FORMAT_VERSION = 1
 
@@ -60,6 +62,39 @@ class CameraConfig:
     """Region of interest on the sample, superpixels: (x0, y0, x1, y1), end exclusive."""
     sensor: dict[str, Any] = field(default_factory=dict)
     max_exposure_retries: int = 4
+    intrinsics: CameraIntrinsics | None = None
+    """Pinhole intrinsics (``[camera.intrinsics]``), needed for image-based measurement."""
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics in superpixels (2×2 CFA cells); None centres the principal point.
+
+    Pixel (row i, column j) has its centre at image coordinates (x, y) = (j, i).
+    """
+
+    fx: float
+    fy: float
+    cx: float | None = None
+    cy: float | None = None
+
+
+SAMPLE_SHAPES = ("flat", "sphere")
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    """The sample's shape (``[sample]``): a flat square facing +z at the origin, or a sphere."""
+
+    shape: str = "flat"
+    size_m: float = 0.05
+    """Edge of the flat sample, and of the flat white-reference plate, m."""
+    radius_m: float = 0.02
+    """Radius of a sphere sample, m."""
+    centre_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Centre of a sphere sample in the sample frame, m."""
+    image_based: bool = False
+    """Every valid pixel on the sample is a BRDF sample (acquisition.reduce_image)."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +105,45 @@ class WhiteReference:
     theta_i: float
     theta_r: float
     delta_phi: float
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    """One arm's collision volume: a capsule (a sphere of ``radius_m`` swept along the arm's
+    direction from ``from_m`` to ``to_m`` metres from the sample centre)."""
+
+    radius_m: float
+    from_m: float
+    to_m: float
+
+
+@dataclass(frozen=True)
+class ArmsConfig:
+    """Collision model of the two arms: their capsules must stay ``clearance_m`` apart."""
+
+    light: ArmConfig
+    camera: ArmConfig
+    clearance_m: float
+
+
+@dataclass(frozen=True)
+class FootprintConfig:
+    """Sizes (m) that bound the grazing angles: the light spot and the camera's measured
+    region, both as diameters at normal incidence, must stay on the sample when stretched
+    by 1/cos θ."""
+
+    sample_size_m: float
+    spot_diameter_m: float
+    view_diameter_m: float
+
+
+@dataclass(frozen=True)
+class LightStageConfig:
+    """Fixed directions (unit vectors, sample frame) of a light stage's lights and camera."""
+
+    light_dirs: tuple[tuple[float, float, float], ...]
+    camera_dir: tuple[float, float, float]
+    tolerance_deg: float
 
 
 @dataclass(frozen=True)
@@ -91,6 +165,11 @@ class RigConfig:
     white_reference: WhiteReference
     time_scale: float
     raw: dict[str, Any]
+    arms: ArmsConfig | None = None
+    footprint: FootprintConfig | None = None
+    light_stage: LightStageConfig | None = None
+    bus_cycle_s: float = 0.005
+    sample: SampleConfig = field(default_factory=SampleConfig)
 
     @property
     def simulated(self) -> bool:
@@ -99,12 +178,11 @@ class RigConfig:
 
     def kinematics(self) -> Kinematics:
         """The kinematics plug-in with this rig's joint limits and distances."""
-        limits = {name: JointLimits(a.min_deg, a.max_deg) for name, a in self.axes.items()}
         cls = KINEMATICS[self.kinematics_name]
         try:
-            return cls(limits, self.light_distance_m, self.camera_distance_m)
+            return cls.from_rig(self)
         except ValueError as exc:
-            raise ConfigError(f"{self.path}: {exc}: add the missing [axes.*] tables") from None
+            raise ConfigError(f"{self.path}: {exc}: add the missing tables to the rig file") from None
 
 
 def load_rig(path: str | Path) -> RigConfig:
@@ -112,7 +190,8 @@ def load_rig(path: str | Path) -> RigConfig:
     path = Path(path)
     top = Section(load_toml(path, "rig file"), str(path))
     top.check_keys({"format_version", "name", "kinematics", "simulation", "buses", "axes",
-                    "geometry", "light", "camera", "white_reference"})
+                    "geometry", "light", "camera", "white_reference", "arms", "sample",
+                    "light_stage", "timing"})
     version = top.integer("format_version")
     if version != RIG_FORMAT_VERSION:
         raise top.error("format_version", f"is {version}; this gonio reads version {RIG_FORMAT_VERSION}")
@@ -123,8 +202,9 @@ def load_rig(path: str | Path) -> RigConfig:
     sim = top.section("simulation", {})
     time_scale = sim.number("time_scale", 1.0, min=1e-3)
 
-    buses_sec = top.section("buses")
-    if not buses_sec.names():
+    fixed = kin == LightStage.name  # a light stage need not have any servo
+    buses_sec = top.section("buses", {}) if fixed else top.section("buses")
+    if not buses_sec.names() and not fixed:
         raise buses_sec.error(None, "declares no bus: add e.g. [buses.main] with port and baud")
     buses = {}
     for name in buses_sec.names():
@@ -137,7 +217,7 @@ def load_rig(path: str | Path) -> RigConfig:
             simulated=b.get("simulated", bool, False),
         )
 
-    axes_sec = top.section("axes")
+    axes_sec = top.section("axes", {}) if fixed else top.section("axes")
     axes = {}
     ids_seen: dict[tuple[str, int], str] = {}
     for name in axes_sec.names():
@@ -174,10 +254,11 @@ def load_rig(path: str | Path) -> RigConfig:
     geo.check_keys({"light_distance_m", "camera_distance_m", "shadow_cone_deg",
                     "max_elevation_deg", "settle_s"})
     light = top.section("light", {})
-    light.check_keys({"intensity_w_per_sr"})
+    light.check_keys({"intensity_w_per_sr", "spot_diameter_m"})
 
     cam = top.section("camera")
-    cam.check_keys({"driver", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries"})
+    cam.check_keys({"driver", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
+                    "view_diameter_m", "intrinsics"})
     roi = cam.get("roi", list)
     if len(roi) != 4 or not all(isinstance(v, int) for v in roi) or not (
         roi[0] < roi[2] and roi[1] < roi[3]
@@ -190,6 +271,7 @@ def load_rig(path: str | Path) -> RigConfig:
         roi=tuple(roi),  # type: ignore[arg-type]
         sensor=cam.get("sensor", dict, {}),
         max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0),
+        intrinsics=_parse_intrinsics(cam.section("intrinsics")) if "intrinsics" in cam else None,
     )
 
     wr = top.section("white_reference", {})
@@ -205,14 +287,27 @@ def load_rig(path: str | Path) -> RigConfig:
         delta_phi=wr.number("delta_phi_deg", 180.0, min=-180, max=360),
     )
 
+    light_distance = geo.number("light_distance_m", min=1e-3)
+    camera_distance = geo.number("camera_distance_m", min=1e-3)
+    sample = top.section("sample", {})
+    sample.check_keys({"size_m", "shape", "radius_m", "centre_m", "image_based"})
+    sample_cfg = _parse_sample(sample, camera)
+    footprint = FootprintConfig(
+        sample_size_m=sample.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
+        spot_diameter_m=light.number("spot_diameter_m", DEFAULT_SPOT_DIAMETER_M, min=0.0),
+        view_diameter_m=cam.number("view_diameter_m", DEFAULT_VIEW_DIAMETER_M, min=0.0),
+    )
+    timing = top.section("timing", {})
+    timing.check_keys({"bus_cycle_s"})
+
     return RigConfig(
         path=path,
         name=top.get("name", str, path.stem),
         kinematics_name=kin,
         buses=buses,
         axes=axes,
-        light_distance_m=geo.number("light_distance_m", min=1e-3),
-        camera_distance_m=geo.number("camera_distance_m", min=1e-3),
+        light_distance_m=light_distance,
+        camera_distance_m=camera_distance,
         light_intensity_w_per_sr=light.number("intensity_w_per_sr", 1.0, min=1e-9),
         shadow_cone_deg=geo.number("shadow_cone_deg", 8.0, min=0, max=90),
         max_elevation_deg=geo.number("max_elevation_deg", 85.0, min=1, max=90),
@@ -221,4 +316,111 @@ def load_rig(path: str | Path) -> RigConfig:
         white_reference=white,
         time_scale=time_scale,
         raw=top.data,
+        arms=_parse_arms(top.section("arms", {}), light_distance, camera_distance),
+        footprint=footprint,
+        light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
+        bus_cycle_s=timing.number("bus_cycle_s", 0.005, min=0.0),
+        sample=sample_cfg,
     )
+
+
+DEFAULT_SAMPLE_SIZE_M = 0.05
+"""Sample edge length (m) when the rig file gives none: a 5 cm coupon."""
+DEFAULT_SPOT_DIAMETER_M = 0.004
+"""Light spot diameter at normal incidence (m) when the rig file gives none."""
+DEFAULT_VIEW_DIAMETER_M = 0.004
+"""Diameter (m) of the sample region the camera measures, at normal view, by default."""
+DEFAULT_ARM_RADIUS_M = {"light": 0.02, "camera": 0.025}
+"""Default capsule radius (m) of each arm's head and boom."""
+DEFAULT_ARM_FROM_FRACTION = 0.8
+"""Default start of an arm's capsule, as a fraction of its distance from the sample."""
+DEFAULT_CLEARANCE_M = 0.005
+
+
+def _parse_arms(sec: Section, light_distance_m: float, camera_distance_m: float) -> ArmsConfig:
+    """``[arms]``: clearance_m and per-arm ``{radius_m, from_m, to_m}`` (defaults: the head
+    region from 0.8× the arm's distance to its distance plus the radius)."""
+    sec.check_keys({"clearance_m", "light", "camera"})
+    arms = {}
+    for name, distance in (("light", light_distance_m), ("camera", camera_distance_m)):
+        a = sec.section(name, {})
+        a.check_keys({"radius_m", "from_m", "to_m"})
+        radius = a.number("radius_m", DEFAULT_ARM_RADIUS_M[name], min=0.0)
+        start = a.number("from_m", DEFAULT_ARM_FROM_FRACTION * distance, min=0.0)
+        stop = a.number("to_m", distance + radius, min=0.0)
+        if stop < start:
+            raise a.error("to_m", f"must be ≥ from_m ({stop:g} < {start:g})")
+        arms[name] = ArmConfig(radius, start, stop)
+    return ArmsConfig(arms["light"], arms["camera"],
+                      sec.number("clearance_m", DEFAULT_CLEARANCE_M, min=0.0))
+
+
+def _parse_intrinsics(sec: Section) -> CameraIntrinsics:
+    """``[camera.intrinsics]``: fx, fy (default fx), cx, cy in superpixels."""
+    sec.check_keys({"fx", "fy", "cx", "cy"})
+    fx = sec.number("fx", min=1e-6)
+    cx = sec.number("cx") if "cx" in sec else None
+    cy = sec.number("cy") if "cy" in sec else None
+    return CameraIntrinsics(fx, sec.number("fy", fx, min=1e-6), cx, cy)
+
+
+def _parse_sample(sec: Section, camera: CameraConfig) -> SampleConfig:
+    """``[sample]``: shape ("flat" | "sphere"), size_m, radius_m, centre_m, image_based."""
+    shape = sec.get("shape", str, "flat")
+    if shape not in SAMPLE_SHAPES:
+        raise sec.error("shape", f"unknown '{shape}' (known: {', '.join(SAMPLE_SHAPES)})")
+    centre = sec.get("centre_m", list, [0.0, 0.0, 0.0])
+    if len(centre) != 3 or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in centre
+    ):
+        raise sec.error("centre_m", f"must be [x, y, z] in metres, got {centre!r}")
+    image_based = sec.get("image_based", bool, False)
+    if image_based and camera.intrinsics is None:
+        raise sec.error("image_based", "needs the camera's pinhole model: add [camera.intrinsics] fx")
+    if shape == "sphere" and not image_based:
+        raise sec.error("shape", "a sphere sample is measured per pixel: set image_based = true")
+    return SampleConfig(
+        shape=shape,
+        size_m=sec.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
+        radius_m=sec.number("radius_m", 0.02, min=1e-6),
+        centre_m=tuple(float(v) for v in centre),  # type: ignore[arg-type]
+        image_based=image_based,
+    )
+
+
+def _angles_to_dir(theta_deg: float, phi_deg: float) -> tuple[float, float, float]:
+    t, p = math.radians(theta_deg), math.radians(phi_deg)
+    return (math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t))
+
+
+def _parse_light_stage(sec: Section) -> LightStageConfig:
+    """``[light_stage]``: lights as ``light_angles_deg = [[θ, φ], …]`` or
+    ``light_directions = [[x, y, z], …]``, the camera as ``camera_angles_deg = [θ, φ]``."""
+    sec.check_keys({"light_angles_deg", "light_directions", "camera_angles_deg", "tolerance_deg"})
+    given = [k for k in ("light_angles_deg", "light_directions") if k in sec]
+    if len(given) != 1:
+        raise sec.error(None, "needs exactly one of light_angles_deg, light_directions")
+    rows = sec.get(given[0], list)
+    width = 2 if given[0] == "light_angles_deg" else 3
+    dirs = []
+    for i, row in enumerate(rows):
+        if not (isinstance(row, list) and len(row) == width
+                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in row)):
+            raise sec.error(given[0], f"entry {i} must be {width} numbers, got {row!r}")
+        if width == 2:
+            d = _angles_to_dir(*row)
+        else:
+            norm = math.sqrt(sum(v * v for v in row))
+            if norm == 0:
+                raise sec.error(given[0], f"entry {i} is the zero vector: give a direction")
+            d = tuple(v / norm for v in row)
+        if d[2] <= 1e-9:
+            raise sec.error(given[0], f"entry {i} is not above the sample (z ≤ 0): fix that light")
+        dirs.append(d)
+    if not dirs:
+        raise sec.error(given[0], "lists no light: add at least one")
+    cam = sec.get("camera_angles_deg", list)
+    if len(cam) != 2 or not all(isinstance(v, int | float) for v in cam):
+        raise sec.error("camera_angles_deg", f"must be [theta_deg, phi_deg], got {cam!r}")
+    return LightStageConfig(tuple(dirs), _angles_to_dir(*cam),  # type: ignore[arg-type]
+                            sec.number("tolerance_deg", 1e-6, min=0.0))

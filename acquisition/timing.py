@@ -2,14 +2,21 @@
 
 X-series units: profile velocity in 0.229 rev/min, profile acceleration in 214.577 rev/min².
 A move of one axis accelerates at ``a`` up to ``v``, cruises, and decelerates; a short move
-never reaches ``v`` (triangular profile). A move of several axes takes as long as its slowest.
+never reaches ``v`` (triangular profile). All axes start together and each runs its own
+profile, so a move of several axes takes as long as its slowest axis.
+
+A capture step costs, besides the move: the settle time, the bus cycle (commands and the
+position polls that confirm arrival) and the exposure. :class:`TimeModel` works on joint
+dicts (the engine's progress ETA) and on (…, J) joint arrays (the planner).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 VELOCITY_UNIT_DEG_PER_S = 0.229 * 360.0 / 60.0
 """One profile-velocity unit in degrees per second (0.229 rev/min)."""
@@ -26,6 +33,31 @@ def trapezoid_time_s(distance_deg: float, velocity_deg_s: float, accel_deg_s2: f
     if d >= velocity_deg_s**2 / accel_deg_s2:
         return d / velocity_deg_s + velocity_deg_s / accel_deg_s2
     return 2.0 * math.sqrt(d / accel_deg_s2)
+
+
+def trapezoid_time_array(distance_deg: np.ndarray, velocity_deg_s: np.ndarray,
+                         accel_deg_s2: np.ndarray) -> np.ndarray:
+    """:func:`trapezoid_time_s` for arrays (broadcast), seconds."""
+    d = np.abs(distance_deg)
+    v, a = velocity_deg_s, accel_deg_s2
+    return np.where(d >= v * v / a, d / v + v / a, 2.0 * np.sqrt(d / a))
+
+
+def trapezoid_progress_deg(distance_deg: np.ndarray, velocity_deg_s: np.ndarray,
+                           accel_deg_s2: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """Signed distance covered after ``t_s`` seconds of a rest-to-rest move (broadcast)."""
+    d = np.abs(distance_deg)
+    v, a = velocity_deg_s, accel_deg_s2
+    vp = np.minimum(v, np.sqrt(a * d))  # peak speed (triangle when the move is short)
+    t_acc = vp / a
+    total = trapezoid_time_array(d, v, a)
+    t = np.clip(t_s, 0.0, total)
+    t_dec = total - t  # time left
+    s = np.where(
+        t <= t_acc, 0.5 * a * t * t,
+        np.where(t_dec <= t_acc, d - 0.5 * a * t_dec * t_dec, 0.5 * a * t_acc * t_acc + vp * (t - t_acc)),
+    )
+    return np.sign(distance_deg) * s
 
 
 @dataclass(frozen=True)
@@ -53,7 +85,16 @@ class StepCosts:
 
 
 class TimeModel:
-    """Move and step durations for a set of axes (degrees, seconds)."""
+    """Move and step durations for a set of axes (degrees, seconds).
+
+    Parameters
+    ----------
+    profiles:
+        Axis name → speed limits. Joints without a profile (a light stage's light index, a
+        joint no servo drives) take no time to change.
+    costs:
+        Per-step settle, bus and exposure times.
+    """
 
     def __init__(self, profiles: Mapping[str, AxisProfile], costs: StepCosts) -> None:
         self.profiles = dict(profiles)
@@ -72,3 +113,47 @@ class TimeModel:
         """Per-pose time that is not motion: settle, bus traffic, exposure."""
         c = self.costs
         return c.settle_s + c.bus_cycle_s + c.exposure_s
+
+    def sequence_s(self, start: Mapping[str, float], targets: Sequence[Mapping[str, float]]) -> float:
+        """Predicted duration of capture steps at ``targets`` in order, starting at ``start``."""
+        total, current = 0.0, start
+        for joints in targets:
+            total += self.move_s(current, joints) + self.step_overhead_s()
+            current = joints
+        return total
+
+    def for_joints(self, joint_names: Sequence[str]) -> ArrayTimeModel:
+        """The vectorised model over joint arrays in ``joint_names`` order."""
+        return ArrayTimeModel(self, tuple(joint_names))
+
+
+class ArrayTimeModel:
+    """Move times between joint arrays (…, J) in a fixed joint order; see :class:`TimeModel`."""
+
+    def __init__(self, model: TimeModel, joint_names: tuple[str, ...]) -> None:
+        self.joint_names = joint_names
+        self.axes = np.array([i for i, n in enumerate(joint_names) if n in model.profiles], dtype=int)
+        self.velocity = np.array([model.profiles[joint_names[i]].velocity_deg_s for i in self.axes])
+        self.accel = np.array([model.profiles[joint_names[i]].accel_deg_s2 for i in self.axes])
+
+    def axis_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Per-axis durations (…, A) of the moves a → b, seconds."""
+        d = b[..., self.axes] - a[..., self.axes]
+        return trapezoid_time_array(d, self.velocity, self.accel)
+
+    def move_s(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Durations (…) of the moves a → b (broadcast), seconds; NaN where a joint is NaN."""
+        if len(self.axes) == 0:
+            shape = np.broadcast_shapes(a.shape, b.shape)[:-1]
+            return np.zeros(shape)
+        return self.axis_times(a, b).max(axis=-1)
+
+    def positions(self, a: np.ndarray, b: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """Joints (…, J) at ``t_s`` seconds into the moves a → b (all axes start together)."""
+        out = np.array(np.broadcast_to(b, np.broadcast_shapes(a.shape, b.shape)), dtype=float)
+        if len(self.axes):
+            d = b[..., self.axes] - a[..., self.axes]
+            out[..., self.axes] = a[..., self.axes] + trapezoid_progress_deg(
+                d, self.velocity, self.accel, np.asarray(t_s)[..., None]
+            )
+        return out

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from acquisition.kinematics import JointLimits, OutOfPlaneArcs, Pose, pose_from_directions
+from acquisition.kinematics import (
+    CoaxialArms,
+    JointLimits,
+    LightStage,
+    OutOfPlaneArcs,
+    Pose,
+    pose_from_directions,
+)
 from drivers.errors import UnreachablePoseError
 from simulators.materials import directions_from_angles
 
@@ -77,3 +84,98 @@ def test_unreachable_pose_raises_with_reason() -> None:
     )
     with pytest.raises(UnreachablePoseError, match="outside the joint limits"):
         k.inverse(Pose(70, 20, 0))
+
+
+# -- coaxial arms ------------------------------------------------------------------------
+
+COAX_LIMITS = {
+    "light_azimuth": JointLimits(-179, 179),
+    "camera_azimuth": JointLimits(-179, 179),
+    "stage_tilt": JointLimits(-80, 80),
+}
+
+
+def coaxial() -> CoaxialArms:
+    return CoaxialArms(COAX_LIMITS, 0.5, 0.6)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(0.0, 87), st.floats(0.0, 87), st.floats(-180, 180, exclude_min=True))
+def test_coaxial_forward_inverse_round_trip(theta_i: float, theta_r: float, delta_phi: float) -> None:
+    k = coaxial()
+    pose = Pose(theta_i, theta_r, delta_phi)
+    candidates = [c for c in k.inverse_candidates(pose) if k.within_limits(c)]
+    assume(candidates)
+    for joints in candidates:  # every reachable solution realises the pose
+        back = k.forward(joints)
+        assert abs(back.theta_i - theta_i) < 1e-9
+        assert abs(back.theta_r - theta_r) < 1e-9
+        if min(theta_i, theta_r) > 1e-6:  # Δφ is undefined at the normal
+            assert angle_diff(back.delta_phi, delta_phi) < 1e-9
+
+
+def test_coaxial_arms_stay_horizontal_and_tilt_sets_the_normal() -> None:
+    k = coaxial()
+    joints = k.inverse(Pose(30, 50, 120))
+    light_w, camera_w = k.arm_directions_array(k.to_array(joints)[None])
+    assert light_w[0, 2] == 0 and camera_w[0, 2] == 0
+    # The angle between the arms equals the angle between light and camera in the sample.
+    g = k.forward_geometry(joints)
+    assert np.dot(light_w[0], camera_w[0]) == pytest.approx(np.dot(g.light_dir, g.camera_dir))
+    t = np.radians(joints["stage_tilt"])
+    normal = np.array([np.cos(t), 0.0, np.sin(t)])
+    assert np.degrees(np.arccos(normal @ light_w[0])) == pytest.approx(30)
+    assert np.degrees(np.arccos(normal @ camera_w[0])) == pytest.approx(50)
+
+
+def test_coaxial_two_mirror_solutions_pick_nearest() -> None:
+    k = coaxial()
+    pose = Pose(40, 30, 100)
+    sols = {round(c["stage_tilt"], 6) for c in k.inverse_candidates(pose) if k.within_limits(c)}
+    assert len(sols) == 2 and sum(sols) == pytest.approx(0)  # tilt ±t: mirror images
+    up = k.inverse(pose, {"light_azimuth": 0, "camera_azimuth": 0, "stage_tilt": 20})
+    down = k.inverse(pose, {"light_azimuth": 0, "camera_azimuth": 0, "stage_tilt": -20})
+    assert up["stage_tilt"] > 0 > down["stage_tilt"]
+    assert up["light_azimuth"] == pytest.approx(-down["light_azimuth"])
+
+
+def test_coaxial_tilt_limit_makes_pose_unreachable() -> None:
+    # Both directions near grazing on opposite sides need a large tilt.
+    k = CoaxialArms({**COAX_LIMITS, "stage_tilt": JointLimits(-10, 10)}, 0.5, 0.6)
+    with pytest.raises(UnreachablePoseError):
+        k.inverse(Pose(80, 80, 20))
+    k.inverse(Pose(80, 80, 180))  # in the plane of the arms: no tilt needed
+
+
+def test_coaxial_stage_rotation_is_held() -> None:
+    k = CoaxialArms({**COAX_LIMITS, "stage_rotation": JointLimits(-90, 90)}, 0.5, 0.6)
+    joints = k.inverse(Pose(20, 40, 60), {"light_azimuth": 0, "camera_azimuth": 0,
+                                          "stage_tilt": 0, "stage_rotation": 33})
+    assert joints["stage_rotation"] == 33
+    back = k.forward(joints)
+    assert back.theta_i == pytest.approx(20) and back.delta_phi == pytest.approx(60)
+
+
+# -- light stage ---------------------------------------------------------------------------
+
+def light_stage() -> LightStage:
+    angles = [(0, 0), (30, 0), (30, 90), (60, 180), (45, 270)]
+    dirs = [directions_from_angles(0, t, p)[1] for t, p in angles]  # (θ, φ) → unit vector
+    camera = directions_from_angles(0, 45, 0)[1]
+    return LightStage(np.array(dirs), camera, 1.0, 1.0)
+
+
+def test_light_stage_pose_is_a_light_index() -> None:
+    k = light_stage()
+    for i, row in enumerate(k.native_poses()):
+        pose = Pose(*row)
+        joints = k.inverse(pose)
+        assert joints == {"light": float(i)}
+        back = k.forward(joints)
+        assert back.theta_i == pytest.approx(pose.theta_i) and back.theta_r == pytest.approx(45)
+
+
+def test_light_stage_pose_between_lights_is_unreachable() -> None:
+    k = light_stage()
+    with pytest.raises(UnreachablePoseError):
+        k.inverse(Pose(31, 45, 180))

@@ -2,22 +2,40 @@
 
 from __future__ import annotations
 
-from .base import Geometry, JointLimits, Joints, Kinematics, Pose, pose_from_directions, wrap_deg
+from .base import (
+    Geometry,
+    JointLimits,
+    Joints,
+    Kinematics,
+    Pose,
+    pose_from_directions,
+    poses_from_directions,
+    poses_to_array,
+    wrap_deg,
+)
+from .coaxial import CoaxialArms
+from .lightstage import LightStage
 from .out_of_plane import OutOfPlaneArcs
 
 KINEMATICS: dict[str, type[Kinematics]] = {
     OutOfPlaneArcs.name: OutOfPlaneArcs,
+    CoaxialArms.name: CoaxialArms,
+    LightStage.name: LightStage,
 }
 """Rig-file name → kinematics class."""
 
 __all__ = [
     "KINEMATICS",
+    "CoaxialArms",
     "Geometry",
     "JointLimits",
     "Joints",
     "Kinematics",
+    "LightStage",
     "OutOfPlaneArcs",
     "Pose",
     "pose_from_directions",
+    "poses_from_directions",
+    "poses_to_array",
     "wrap_deg",
 ]

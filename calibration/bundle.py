@@ -1,0 +1,235 @@
+"""A calibration bundle: one folder holding a camera's calibration, with provenance.
+
+Layout::
+
+    bundle.json               scalars: format, noise models, white reference, and for every
+                              image its file, shape and provenance (who, when, from what)
+    dark-t0.01-iso100.exr     master dark per (exposure s, ISO), DN, black level included
+    flat.exr                  flat field, mean 1 per colour
+    bad-pixels.exr            1 where a pixel must not be used
+
+Images are single-channel float32 OpenEXR files written through OpenImageIO (float32 holds
+every 16-bit DN exactly); each EXR also carries its own ``gonio:*`` attributes. Files are
+written under a temporary name and renamed, so a bundle never holds half an image.
+
+Use :meth:`CalibrationBundle.open` (existing folder) or :meth:`CalibrationBundle.create`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import OpenImageIO as oiio
+
+from calibration.linearize import NoiseModel
+from drivers.errors import CalibrationError, StorageError
+
+BUNDLE_FORMAT = "gonio-calibration-bundle"
+BUNDLE_VERSION = 1
+SCALARS_FILE = "bundle.json"
+FLAT_FILE = "flat.exr"
+BAD_PIXELS_FILE = "bad-pixels.exr"
+
+
+def dark_name(exposure_s: float, iso: float) -> str:
+    """File name of the master dark for ``exposure_s`` (s) and ``iso``."""
+    return f"dark-t{exposure_s:.6g}-iso{iso:g}.exr"
+
+
+def provenance(**extra: Any) -> dict[str, Any]:
+    """When and where something was made, plus ``extra`` (source frames, rig, counts)."""
+    return {
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "host": platform.node(),
+        **extra,
+    }
+
+
+def write_exr(path: Path, image: np.ndarray, attributes: Mapping[str, Any] | None = None) -> None:
+    """Write a 2-D (or H×W×C) array as float32 OpenEXR with ``gonio:*`` attributes, atomically."""
+    arr = np.ascontiguousarray(image, dtype=np.float32)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    h, w, c = arr.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.attribute("compression", "zip")
+    for key, value in (attributes or {}).items():
+        if isinstance(value, bool | int):
+            spec.attribute(f"gonio:{key}", int(value))
+        elif isinstance(value, float):
+            spec.attribute(f"gonio:{key}", float(value))
+        else:
+            spec.attribute(f"gonio:{key}", str(value))
+    tmp = path.with_name(path.name + ".tmp.exr")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), spec):
+        raise StorageError(f"cannot write {path} ({oiio.geterror()}); check the folder is writable")
+    ok = out.write_image(arr)
+    out.close()
+    if not ok:
+        raise StorageError(f"cannot write {path} ({oiio.geterror()}); check the disk is not full")
+    os.replace(tmp, path)
+
+
+def read_exr(path: Path) -> tuple[np.ndarray, dict[str, Any]]:
+    """Read an EXR: (H×W float32 for one channel, else H×W×C) and its ``gonio:*`` attributes."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise CalibrationError(
+            f"cannot read calibration image {path} ({oiio.geterror()}); re-run gonio calibrate"
+        )
+    try:
+        spec = inp.spec()
+        data = inp.read_image(oiio.FLOAT)
+        attrs = {
+            p.name.split(":", 1)[1]: p.value
+            for p in spec.extra_attribs
+            if p.name.startswith("gonio:")
+        }
+    finally:
+        inp.close()
+    if data is None:
+        raise CalibrationError(f"cannot decode calibration image {path}; re-run gonio calibrate")
+    arr = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    return (arr[:, :, 0] if spec.nchannels == 1 else arr), attrs
+
+
+class CalibrationBundle:
+    """A calibration folder (see module docstring). Changes are saved at once."""
+
+    def __init__(self, path: Path, scalars: dict[str, Any]) -> None:
+        self.path = path
+        self._scalars = scalars
+
+    # -- opening ---------------------------------------------------------------------------
+    @classmethod
+    def create(
+        cls, path: str | os.PathLike[str], camera: Mapping[str, Any] | None = None
+    ) -> CalibrationBundle:
+        """Open ``path`` if it is a bundle, else make a new empty one there."""
+        path = Path(path)
+        if (path / SCALARS_FILE).exists():
+            return cls.open(path)
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StorageError(f"cannot create bundle folder {path} ({exc.strerror})") from exc
+        bundle = cls(path, {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION,
+                            "camera": dict(camera or {}), "darks": {}, "noise": {}})
+        bundle._save()
+        return bundle
+
+    @classmethod
+    def open(cls, path: str | os.PathLike[str]) -> CalibrationBundle:
+        """Open an existing bundle folder."""
+        path = Path(path)
+        file = path / SCALARS_FILE
+        try:
+            scalars = json.loads(file.read_text())
+        except FileNotFoundError:
+            raise CalibrationError(
+                f"{path} is not a calibration bundle (no {SCALARS_FILE}); make one with "
+                "gonio calibrate dark|flat|noise|white --out " + str(path)
+            ) from None
+        except json.JSONDecodeError as exc:
+            raise CalibrationError(f"{file}: not valid JSON ({exc}); re-run gonio calibrate") from None
+        if scalars.get("format") != BUNDLE_FORMAT or scalars.get("version") != BUNDLE_VERSION:
+            raise CalibrationError(
+                f"{file}: not a {BUNDLE_FORMAT} v{BUNDLE_VERSION} file; re-run gonio calibrate"
+            )
+        return cls(path, scalars)
+
+    def _save(self) -> None:
+        file = self.path / SCALARS_FILE
+        tmp = file.with_name(file.name + ".tmp")
+        tmp.write_text(json.dumps(self._scalars, indent=2, sort_keys=True) + "\n")
+        os.replace(tmp, file)
+
+    @property
+    def scalars(self) -> dict[str, Any]:
+        """A copy of everything in ``bundle.json``."""
+        return json.loads(json.dumps(self._scalars))
+
+    # -- darks -----------------------------------------------------------------------------
+    def add_dark(self, dark: np.ndarray, exposure_s: float, iso: float, prov: Mapping[str, Any]) -> Path:
+        """Store a master dark (H×W, DN) for (exposure s, ISO)."""
+        name = dark_name(exposure_s, iso)
+        write_exr(self.path / name, dark, {"kind": "dark", "exposure_s": float(exposure_s),
+                                           "iso": float(iso)})
+        self._scalars["darks"][name] = {"exposure_s": float(exposure_s), "iso": float(iso),
+                                        "shape": list(dark.shape), "provenance": dict(prov)}
+        self._save()
+        return self.path / name
+
+    def dark_for(self, exposure_s: float, iso: float, *, rel_tol: float = 1e-6) -> np.ndarray | None:
+        """The master dark taken at this exposure and ISO, or None."""
+        for name, entry in self._scalars["darks"].items():
+            if entry["iso"] == float(iso) and math.isclose(entry["exposure_s"], exposure_s,
+                                                           rel_tol=rel_tol):
+                return read_exr(self.path / name)[0]
+        return None
+
+    # -- flat, bad pixels --------------------------------------------------------------------
+    def set_flat(self, flat: np.ndarray, prov: Mapping[str, Any]) -> None:
+        """Store the flat field (H×W, mean 1 per colour)."""
+        write_exr(self.path / FLAT_FILE, flat, {"kind": "flat"})
+        self._scalars["flat"] = {"file": FLAT_FILE, "shape": list(flat.shape), "provenance": dict(prov)}
+        self._save()
+
+    @property
+    def flat(self) -> np.ndarray | None:
+        """The flat field, or None."""
+        return read_exr(self.path / FLAT_FILE)[0] if "flat" in self._scalars else None
+
+    def set_bad_pixels(self, bad: np.ndarray, prov: Mapping[str, Any]) -> None:
+        """Store the bad-pixel map (H×W bool)."""
+        write_exr(self.path / BAD_PIXELS_FILE, bad.astype(np.float32), {"kind": "bad_pixels"})
+        self._scalars["bad_pixels"] = {"file": BAD_PIXELS_FILE, "count": int(np.count_nonzero(bad)),
+                                       "shape": list(bad.shape), "provenance": dict(prov)}
+        self._save()
+
+    @property
+    def bad_pixels(self) -> np.ndarray | None:
+        """The bad-pixel map (H×W bool), or None."""
+        if "bad_pixels" not in self._scalars:
+            return None
+        return read_exr(self.path / BAD_PIXELS_FILE)[0] > 0.5
+
+    # -- noise -----------------------------------------------------------------------------
+    def set_noise(self, model: NoiseModel, prov: Mapping[str, Any]) -> None:
+        """Store a noise model for its ISO (``model.iso`` must be set)."""
+        if model.iso is None:
+            raise CalibrationError("a bundle stores noise models per ISO: set NoiseModel.iso")
+        gain, read = model.per_colour()
+        self._scalars["noise"][f"{model.iso:g}"] = {
+            "iso": float(model.iso), "gain_e_per_dn": gain.tolist(),
+            "read_noise_dn": read.tolist(), "provenance": dict(prov),
+        }
+        self._save()
+
+    def noise_for(self, iso: float) -> NoiseModel | None:
+        """The noise model measured at ``iso``, or None."""
+        entry = self._scalars["noise"].get(f"{iso:g}")
+        if entry is None:
+            return None
+        return NoiseModel(tuple(entry["gain_e_per_dn"]), tuple(entry["read_noise_dn"]), entry["iso"])
+
+    # -- white reference ----------------------------------------------------------------------
+    def set_white(self, white: Mapping[str, Any], prov: Mapping[str, Any]) -> None:
+        """Store the white-reference measurement (see :mod:`calibration.white`)."""
+        self._scalars["white"] = {**dict(white), "provenance": dict(prov)}
+        self._save()
+
+    @property
+    def white(self) -> dict[str, Any] | None:
+        """The stored white-reference measurement, or None."""
+        w = self._scalars.get("white")
+        return None if w is None else dict(w)

@@ -8,7 +8,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,14 +17,16 @@ import acquisition.merl  # noqa: F401  (registers the merl:PATH material)
 from drivers.errors import SessionError
 from simulators.materials import material_from_spec
 
-from .devices import open_devices
+from .devices import RigDevices, open_devices
 from .journal import StepRecord
 from .kinematics import Pose
-from .plan import load_plan
+from .observers import Observer
+from .plan import PlanSpec, load_plan
 from .planner import Planner, Sweep  # noqa: F401  (re-exported)
 from .reduce import Reduction, reduce_session
-from .rig import load_rig
-from .session import CaptureEngine, SessionFolder, create_session
+from .rig import RigConfig, load_rig
+from .session import CaptureEngine, SessionEngine, SessionFolder, create_session
+from .steps import Step, count_rows, pose_steps
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 
@@ -55,8 +58,9 @@ def run_session(
     sim_faults: Sequence[str] = (),
     progress: Progress | None = None,
     on_open: Callable[[SessionFolder, float | None], None] | None = None,
+    observers: Sequence[Observer] = (),
 ) -> CaptureResult:
-    """Run (or continue) every step of a session that is not done yet."""
+    """Run (or continue) every step of a pre-planned session that is not done yet."""
     rig = folder.rig()
     material = material_from_spec(folder.info.material) if folder.info.material else None
     if rig.simulated and material is None:
@@ -67,7 +71,8 @@ def run_session(
         if on_open:
             on_open(folder, devices.device_time_s())
         t0 = devices.device_time_s()
-        engine = CaptureEngine(folder, devices, devices.roi_saturated, progress)
+        engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
+                               planner)
         counts = engine.run()
         t1 = devices.device_time_s()
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0)
@@ -82,14 +87,24 @@ def capture(
     seed: int = 0,
     sim_faults: Sequence[str] = (),
     progress: Progress | None = None,
+    calibration: str | Path | None = None,
+    observers: Sequence[Observer] = (),
 ) -> CaptureResult:
-    """Create a session folder at ``out`` and capture the plan on the rig."""
-    rig = load_rig(rig_path)
+    """Create a session folder at ``out`` and capture the plan on the rig.
+
+    ``calibration`` (a file or folder) is copied into the session for provenance.
+    """
+    material = _check_material(load_rig(rig_path), material)
+    folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
+                               calibration=calibration)
+    return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers)
+
+
+def _check_material(rig: RigConfig, material: str | None) -> str | None:
     if rig.simulated:
         material = material or DEFAULT_MATERIAL
         material_from_spec(material)  # fail before creating anything
-    folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed)
-    return run_session(folder, sim_faults=sim_faults, progress=progress)
+    return material
 
 
 def resume(
@@ -97,9 +112,98 @@ def resume(
     *,
     sim_faults: Sequence[str] = (),
     progress: Progress | None = None,
+    observers: Sequence[Observer] = (),
 ) -> CaptureResult:
     """Continue an interrupted session where it stopped."""
-    return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress)
+    return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
+                       observers=observers)
+
+
+class ScriptedSession:
+    """An open session with its devices, running plans of step records.
+
+    Obtain one from :func:`scripted_session`. See :mod:`acquisition.steps` for the records.
+    """
+
+    def __init__(self, folder: SessionFolder, devices: RigDevices, planner: Planner) -> None:
+        self.folder = folder
+        self.devices = devices
+        self.planner = planner
+        self.engine = SessionEngine(folder, devices, planner, saturated=devices.roi_saturated)
+
+    @property
+    def rig(self) -> RigConfig:
+        return self.engine.rig
+
+    @property
+    def plan(self) -> PlanSpec:
+        return self.engine.plan
+
+    @property
+    def reference_joints(self) -> dict[str, float]:
+        """The joints (degrees) of the white reference's pose."""
+        return dict(self.engine.ref_joints)
+
+    def run(
+        self,
+        steps: Iterable[Step],
+        observers: Sequence[Observer] = (),
+        total: int | None = None,
+    ) -> dict[str, int]:
+        """Run a plan (list or generator of step records); returns the journal's status counts.
+
+        Steps the journal holds as done are skipped, so rerunning the same script after a
+        crash continues it. ``total`` (journal steps) defaults to the plan's length for a list.
+        """
+        if total is None and isinstance(steps, Sequence):
+            total = count_rows(steps)
+        self.engine.observers = list(observers)
+        return self.engine.run(steps, total)
+
+    def sweep(self, poses: Sequence[Pose] | None = None, **kwargs: object) -> list[Step]:
+        """The standard sweep (references, move/expose/checkpoint per pose) as step records.
+
+        ``poses`` defaults to the plan file's; unsafe poses are dropped by the planner.
+        Keyword arguments go to :func:`acquisition.steps.sweep_steps`.
+        """
+        chosen = self.plan.poses() if poses is None else list(poses)
+        kwargs.setdefault("reference_every", self.plan.capture.reference_every)
+        return list(pose_steps(self.planner, chosen, self.engine.ref_joints, **kwargs))  # type: ignore[arg-type]
+
+
+@contextmanager
+def scripted_session(
+    out: str | Path,
+    rig_path: str | Path,
+    plan_path: str | Path,
+    *,
+    material: str | None = None,
+    seed: int = 0,
+    calibration: str | Path | None = None,
+    resume: bool = False,
+    sim_faults: Sequence[str] = (),
+) -> Iterator[ScriptedSession]:
+    """Open the rig for a scripted capture into the session folder ``out``.
+
+    The plan file gives the table bins and capture settings; the script gives the steps.
+    With ``resume=True`` an existing scripted session at ``out`` is reopened (rerun the same
+    script to continue it); otherwise ``out`` must not exist.
+    """
+    if resume and Path(out).exists():
+        folder = SessionFolder(out)
+        if not folder.info.scripted:
+            raise SessionError(f"{out} is not a scripted session: continue it with `gonio resume {out}`")
+    else:
+        material = _check_material(load_rig(rig_path), material)
+        folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
+                                   calibration=calibration, scripted=True)
+    rig = folder.rig()
+    spec = folder.info.material
+    mat = material_from_spec(spec) if spec else None
+    planner = Planner.for_plan(rig, folder.plan())
+    with open_devices(rig, planner, material=mat, seed=folder.info.seed,
+                      sim_faults=sim_faults) as devices:
+        yield ScriptedSession(folder, devices, planner)
 
 
 def reduce(

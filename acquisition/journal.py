@@ -8,6 +8,7 @@ hash can be checked) or still to do.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 import time
@@ -22,9 +23,9 @@ SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS steps (
     step INTEGER PRIMARY KEY,
-    kind TEXT NOT NULL,               -- 'pose' or 'reference'
-    theta_i REAL, theta_r REAL, delta_phi REAL,   -- degrees
-    joints_cmd TEXT NOT NULL,         -- JSON {axis: degrees}
+    kind TEXT NOT NULL,               -- 'pose' | 'reference' | 'dark' | 'custom'
+    theta_i REAL, theta_r REAL, delta_phi REAL,   -- degrees (NULL for 'custom')
+    joints_cmd TEXT NOT NULL,         -- JSON {axis: degrees} ({} for 'custom')
     status TEXT NOT NULL DEFAULT 'planned',       -- planned | started | done
     attempts INTEGER NOT NULL DEFAULT 0,
     joints_read TEXT,                 -- JSON {axis: degrees}, read back after the move
@@ -32,7 +33,8 @@ CREATE TABLE IF NOT EXISTS steps (
     sha256 TEXT,
     exposure_s REAL, iso INTEGER,
     started_at REAL, completed_at REAL,           -- host UNIX time, s
-    device_time_s REAL                -- device clock at completion (simulated rigs), s
+    device_time_s REAL,               -- device clock at completion (simulated rigs), s
+    note TEXT                         -- custom step name, bracket factor, … (JSON or text)
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -47,9 +49,9 @@ class StepRecord:
 
     step: int
     kind: str
-    theta_i: float
-    theta_r: float
-    delta_phi: float
+    theta_i: float | None
+    theta_r: float | None
+    delta_phi: float | None
     joints_cmd: dict[str, float]
     status: str
     attempts: int
@@ -61,18 +63,40 @@ class StepRecord:
     started_at: float | None
     completed_at: float | None
     device_time_s: float | None
+    note: str | None = None
+
+
+_COLUMNS = (
+    "step, kind, theta_i, theta_r, delta_phi, joints_cmd, status, attempts, joints_read, frame, "
+    "sha256, exposure_s, iso, started_at, completed_at, device_time_s, note"
+)
+
+
+def _record(row: Sequence[Any]) -> StepRecord:
+    return StepRecord(
+        row[0], row[1], row[2], row[3], row[4], json.loads(row[5]), row[6], row[7],
+        json.loads(row[8]) if row[8] else None, *row[9:],
+    )
 
 
 class Journal:
     """Open (or create) the journal database of a session folder."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
         self.path = Path(path)
         try:
+            if readonly:  # a reader beside a running capture: no schema writes
+                self._db = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True,
+                                           isolation_level=None)
+                self._db.execute("SELECT COUNT(*) FROM steps")
+                return
             self._db = sqlite3.connect(self.path, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.executescript(SCHEMA)
+            columns = {r[1] for r in self._db.execute("PRAGMA table_info(steps)")}
+            if "note" not in columns:  # journals written before the column existed
+                self._db.execute("ALTER TABLE steps ADD COLUMN note TEXT")
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"journal {self.path} is unreadable ({exc}): the session is damaged") from None
 
@@ -122,6 +146,30 @@ class Journal:
             self._db.execute("ROLLBACK")
             raise
 
+    def add_step(
+        self,
+        step: int,
+        kind: str,
+        pose: tuple[float, float, float] | None,
+        joints: dict[str, float],
+        note: str | None = None,
+    ) -> StepRecord:
+        """Record one planned step met for the first time by a scripted plan."""
+        ti, tr, dp = pose if pose is not None else (None, None, None)
+        self._write(
+            "INSERT INTO steps (step, kind, theta_i, theta_r, delta_phi, joints_cmd, note) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (step, kind, ti, tr, dp, json.dumps(joints), note),
+        )
+        rec = self.record(step)
+        assert rec is not None
+        return rec
+
+    def record(self, step: int) -> StepRecord | None:
+        """The journal row of ``step``, or None."""
+        row = self._db.execute(f"SELECT {_COLUMNS} FROM steps WHERE step = ?", (step,)).fetchone()
+        return None if row is None else _record(row)
+
     def mark_started(self, step: int) -> None:
         self._write(
             "UPDATE steps SET status = 'started', attempts = attempts + 1, started_at = ? "
@@ -147,6 +195,13 @@ class Journal:
              device_time_s, step),
         )
 
+    def mark_called(self, step: int, device_time_s: float | None) -> None:
+        """Complete a step that produces no frame (a custom call)."""
+        self._write(
+            "UPDATE steps SET status = 'done', completed_at = ?, device_time_s = ? WHERE step = ?",
+            (time.time(), device_time_s, step),
+        )
+
     def mark_redo(self, step: int, why: str) -> None:
         """Return a step to 'planned' (its frame was missing or did not match its hash)."""
         self._write(
@@ -156,16 +211,8 @@ class Journal:
         self.log("warning", why, step)
 
     def steps(self) -> Iterator[StepRecord]:
-        cur = self._db.execute(
-            "SELECT step, kind, theta_i, theta_r, delta_phi, joints_cmd, status, attempts, "
-            "joints_read, frame, sha256, exposure_s, iso, started_at, completed_at, "
-            "device_time_s FROM steps ORDER BY step"
-        )
-        for row in cur:
-            yield StepRecord(
-                row[0], row[1], row[2], row[3], row[4], json.loads(row[5]), row[6], row[7],
-                json.loads(row[8]) if row[8] else None, *row[9:],
-            )
+        for row in self._db.execute(f"SELECT {_COLUMNS} FROM steps ORDER BY step"):
+            yield _record(row)
 
     def counts(self) -> dict[str, int]:
         return dict(self._db.execute("SELECT status, COUNT(*) FROM steps GROUP BY status").fetchall())
@@ -177,6 +224,11 @@ class Journal:
             "INSERT INTO events (at, level, step, message) VALUES (?, ?, ?, ?)",
             (time.time(), level, step, message),
         )
+
+    def try_log(self, level: str, message: str, step: int | None = None) -> None:
+        """Like :meth:`log`, but silent when the journal cannot be written (full disk)."""
+        with contextlib.suppress(StorageError, sqlite3.Error):
+            self.log(level, message, step)
 
     def events(self) -> list[tuple[float, str, int | None, str]]:
         return self._db.execute("SELECT at, level, step, message FROM events ORDER BY id").fetchall()

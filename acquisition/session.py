@@ -1,46 +1,65 @@
 """Capture sessions: a folder that holds everything needed to finish, check and reduce a run.
 
-Layout of a session folder::
+Layout of a session folder (see docs/formats.md)::
 
     rig.toml        copy of the rig file used
     plan.toml       copy of the plan file used
+    calibration/    copy of the calibration used, when one was given
     session.json    material, seed, versions (provenance)
     journal.sqlite  every step's intent and completion (see acquisition.journal)
     frames/         RAW frames, written atomically, named step-NNNNNN.dng
 
-:func:`create_session` plans the sweep once and records every step; :class:`CaptureEngine`
-runs the steps still to do, so ``gonio resume`` after Ctrl-C, a crash or a power cut continues
-exactly where the run stopped.
+:func:`create_session` lays the folder out (and for ``gonio capture`` plans the sweep once,
+recording every step); :class:`SessionEngine` runs a plan of step records
+(:mod:`acquisition.steps`) against the journal, skipping what is done, so ``gonio resume``
+after Ctrl-C, a crash or a power cut continues exactly where the run stopped.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import math
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from drivers.errors import GonioError, SafetyStop, SessionError
+from drivers.errors import GonioError, SafetyStop, SessionError, StorageError
 
 from .journal import Journal, StepRecord
 from .kinematics import Pose
 from .plan import PlanSpec, load_plan
 from .planner import Planner, Sweep
 from .rig import RigConfig, load_rig
+from .steps import (
+    CUSTOM,
+    DARK,
+    POSE,
+    REFERENCE,
+    Checkpoint,
+    Custom,
+    Dark,
+    Expose,
+    Move,
+    Reference,
+    Step,
+    sweep_steps,
+)
 from .storage import TMP_SUFFIX, atomic_target, sha256_file
+
+if TYPE_CHECKING:
+    from .observers import Observer
 
 RIG_FILE = "rig.toml"
 PLAN_FILE = "plan.toml"
 INFO_FILE = "session.json"
 JOURNAL_FILE = "journal.sqlite"
 FRAMES_DIR = "frames"
-
-REFERENCE = "reference"
-POSE = "pose"
+CALIBRATION_DIR = "calibration"
 
 
 class CaptureDevices(Protocol):
@@ -76,6 +95,10 @@ class SessionInfo:
     rig_name: str
     plan_name: str
     estimated_s: float
+    calibration: str | None = None
+    """Path of the copied calibration inside the session folder, if any."""
+    scripted: bool = False
+    """True when a script's step plan (not the plan file's sweep) drives the session."""
 
     def to_json(self) -> dict[str, Any]:
         return self.__dict__.copy()
@@ -104,21 +127,71 @@ class SessionFolder:
     def plan(self) -> PlanSpec:
         return load_plan(self.path / PLAN_FILE)
 
-    def journal(self) -> Journal:
-        return Journal(self.path / JOURNAL_FILE)
+    def journal(self, *, readonly: bool = False) -> Journal:
+        return Journal(self.path / JOURNAL_FILE, readonly=readonly)
+
+    def planner(self) -> Planner:
+        return Planner.for_plan(self.rig(), self.plan())
+
+    @property
+    def calibration(self) -> Path | None:
+        """The copied calibration (file or folder), if the session has one."""
+        return None if self.info.calibration is None else self.path / self.info.calibration
+
+
+def reference_geometry(rig: RigConfig, planner: Planner) -> tuple[Pose, dict[str, float]]:
+    """The white reference's pose (deg) and joints (deg) from the rig file."""
+    wr = rig.white_reference
+    pose = Pose(wr.theta_i, wr.theta_r, wr.delta_phi)
+    return pose, dict(planner.joints_for(pose))
 
 
 def schedule_steps(sweep: Sweep, reference_joints: dict[str, float], reference_pose: Pose,
                    reference_every: int) -> list[tuple[str, float, float, float, dict[str, float]]]:
-    """Interleave white-reference steps (first, every N poses, last) with the sweep's poses."""
-    ref = (REFERENCE, *reference_pose.as_tuple(), reference_joints)
-    rows: list[tuple[str, float, float, float, dict[str, float]]] = [ref]
-    for i, step in enumerate(sweep.steps):
-        if reference_every and i and i % reference_every == 0:
-            rows.append(ref)
-        rows.append((POSE, *step.pose.as_tuple(), step.joints))
-    rows.append(ref)
+    """Journal rows (kind, θi, θr, Δφ, joints) of :func:`acquisition.steps.sweep_steps`."""
+    ref = Reference(reference_pose, reference_joints)
+    rows: list[tuple[str, float, float, float, dict[str, float]]] = []
+    current: Move | None = None
+    for step in sweep_steps(sweep, reference_every=reference_every, reference=ref):
+        if isinstance(step, Reference):
+            rows.append((REFERENCE, *reference_pose.as_tuple(), dict(reference_joints)))
+        elif isinstance(step, Move):
+            current = step
+        elif isinstance(step, Expose):
+            assert current is not None and current.joints is not None
+            rows.extend([(POSE, *current.pose.as_tuple(), dict(current.joints))] * len(step.bracket))
     return rows
+
+
+def steps_from_journal(records: Iterable[StepRecord]) -> Iterator[Step]:
+    """Replay a pre-planned session (``gonio capture``): its journal rows as step records."""
+    for rec in records:
+        pose = None if rec.theta_i is None else Pose(rec.theta_i, rec.theta_r, rec.delta_phi)
+        if rec.kind == REFERENCE:
+            yield Reference(pose, rec.joints_cmd)
+        elif rec.kind == POSE:
+            assert pose is not None
+            yield Move(pose, rec.joints_cmd)
+            yield Expose()
+        else:
+            raise SessionError(
+                f"journal step {rec.step} is a '{rec.kind}' step of a scripted session: "
+                "rerun its script to continue it"
+            )
+        yield Checkpoint()
+
+
+def copy_calibration(source: str | Path, out: Path) -> str:
+    """Copy a calibration file or folder into ``out/calibration``; returns its relative path."""
+    source = Path(source)
+    if source.is_dir():
+        shutil.copytree(source, out / CALIBRATION_DIR)
+        return CALIBRATION_DIR
+    if not source.is_file():
+        raise SessionError(f"calibration {source} does not exist: give a calibration file or folder")
+    (out / CALIBRATION_DIR).mkdir()
+    shutil.copyfile(source, out / CALIBRATION_DIR / source.name)
+    return f"{CALIBRATION_DIR}/{source.name}"
 
 
 def create_session(
@@ -128,8 +201,14 @@ def create_session(
     *,
     material: str | None,
     seed: int = 0,
-) -> tuple[SessionFolder, Sweep]:
-    """Plan the sweep and lay out a new session folder; refuses an existing one."""
+    calibration: str | Path | None = None,
+    scripted: bool = False,
+) -> tuple[SessionFolder, Sweep | None]:
+    """Lay out a new session folder; refuses an existing one.
+
+    Unless ``scripted``, the plan file's sweep is planned and every step recorded in the
+    journal now; a scripted session's steps are journaled as its script reaches them.
+    """
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SessionError(
@@ -138,23 +217,31 @@ def create_session(
     rig = load_rig(rig_path)
     plan = load_plan(plan_path)
     planner = Planner.for_plan(rig, plan)
-    wr = rig.white_reference
-    ref_pose = Pose(wr.theta_i, wr.theta_r, wr.delta_phi)
-    ref_joints = planner.joints_for(ref_pose)
-    sweep = planner.plan(plan.poses(), ref_joints)
-    if not sweep.steps:
+    ref_pose, ref_joints = reference_geometry(rig, planner)
+    sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
+    if sweep is not None and not sweep.steps:
         raise SessionError(f"plan {plan_path} leaves no measurable pose on this rig: widen its ranges")
     out.mkdir(parents=True, exist_ok=True)
     try:
         (out / FRAMES_DIR).mkdir()
         shutil.copyfile(rig_path, out / RIG_FILE)
         shutil.copyfile(plan_path, out / PLAN_FILE)
-        info = SessionInfo(material, seed, time.time(), rig.name, plan.name, sweep.estimated_s)
+        cal = None if calibration is None else copy_calibration(calibration, out)
+        info = SessionInfo(material, seed, time.time(), rig.name, plan.name,
+                           sweep.estimated_s if sweep else 0.0, cal, scripted)
         (out / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
         with Journal(out / JOURNAL_FILE) as journal:
-            journal.plan_steps(schedule_steps(sweep, ref_joints, ref_pose, plan.capture.reference_every))
-            journal.set_meta("rejected", sweep.rejected_counts())
-            journal.set_meta("estimate", sweep.summary())
+            if sweep is not None:
+                journal.plan_steps(
+                    schedule_steps(sweep, ref_joints, ref_pose, plan.capture.reference_every)
+                )
+                journal.set_meta("rejected", sweep.rejected_counts())
+                journal.set_meta("estimate", sweep.summary())
+    except OSError as exc:
+        shutil.rmtree(out, ignore_errors=True)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise StorageError(f"disk full creating session {out}: free space, then retry") from None
+        raise
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -165,48 +252,115 @@ def frame_name(step: int) -> str:
     return f"step-{step:06d}.dng"
 
 
+
+
 ProgressCallback = Callable[[int, int, StepRecord], None]
 """Called after each completed step with (done, total, record)."""
 
 
-class CaptureEngine:
-    """Runs a session's remaining steps on open devices.
+@dataclass(frozen=True)
+class StepEvent:
+    """A journal step just completed (what observers receive)."""
+
+    record: StepRecord
+    done: int
+    """Journal steps done so far (this one included)."""
+    total: int | None
+    """Journal steps known so far (None: an open-ended plan has not said)."""
+    frame: Path | None
+    """The frame written, if the step took one."""
+
+
+@dataclass
+class StepContext:
+    """What a :class:`~acquisition.steps.Custom` step's function receives."""
+
+    folder: SessionFolder
+    devices: CaptureDevices
+    journal: Journal
+    step: int
+    pose: Pose | None
+    """The last target pose (degrees), if any."""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+Handler = Callable[[Step], None]
+
+
+class SessionEngine:
+    """Runs a plan of step records on open devices, journaling every frame.
 
     Parameters
     ----------
-    folder:
+    folder
         The session.
-    devices:
+    devices
         An open rig (see :mod:`acquisition.devices`).
-    saturated:
-        ``saturated(frame_path) -> bool``: whether the region of interest clipped; the step is
+    planner
+        Guards and solves moves (joints for a pose given without them).
+    saturated
+        ``saturated(frame_path) -> bool``: whether the region of interest clipped; the frame is
         retaken at a quarter of the exposure, up to the rig's ``max_exposure_retries``.
+    observers
+        :class:`acquisition.observers.Observer` objects told of start, steps, checkpoints,
+        errors and the end.
+
+    Notes
+    -----
+    Each record producing a journal row gets the next step number in plan order. A row the
+    journal holds as done is skipped (its move too, when nothing at that pose is left to do);
+    a row that differs from the journal's (kind, joints, note) stops the run with a
+    :class:`SessionError`. :attr:`handlers` maps record types to methods; add your own record
+    types there.
     """
 
     def __init__(
         self,
         folder: SessionFolder,
         devices: CaptureDevices,
-        saturated: Callable[[Path], bool],
-        progress: ProgressCallback | None = None,
+        planner: Planner,
+        *,
+        saturated: Callable[[Path], bool] | None = None,
+        observers: Sequence[Observer] = (),
     ) -> None:
         self.folder = folder
         self.devices = devices
-        self.saturated = saturated
-        self.progress = progress
+        self.planner = planner
+        self.saturated = saturated or (lambda _path: False)
+        self.observers = list(observers)
         self.rig = folder.rig()
         self.plan = folder.plan()
+        self.ref_pose, self.ref_joints = reference_geometry(self.rig, planner)
+        self.handlers: dict[type, Handler] = {
+            Move: self._move,  # type: ignore[dict-item]
+            Expose: self._expose,  # type: ignore[dict-item]
+            Dark: self._dark,  # type: ignore[dict-item]
+            Reference: self._reference,  # type: ignore[dict-item]
+            Checkpoint: self._checkpoint,  # type: ignore[dict-item]
+            Custom: self._custom,  # type: ignore[dict-item]
+        }
+        self._stop_requested = False
+        self._journal: Journal | None = None
+
+    # ------------------------------------------------------------------ control
+    def request_stop(self) -> None:
+        """Stop at the next checkpoint (a deferred, clean stop; safe from a signal handler)."""
+        self._stop_requested = True
 
     def verify_done_steps(self, journal: Journal) -> int:
-        """Send back to 'planned' every done step whose frame is missing or fails its hash."""
+        """Send back to 'planned' every done step whose frame is missing or fails its hash.
+
+        Half-written frames (``*.partial``) are deleted. Returns the number of steps to redo.
+        """
         redo = 0
         for partial in self.folder.frames_dir.glob(f"*{TMP_SUFFIX}"):
             partial.unlink()
+            journal.log("warning", f"discarded the half-written frame {partial.name}")
         for rec in journal.steps():
-            if rec.status != "done":
+            if rec.status != "done" or rec.kind == CUSTOM:
                 continue
             frame = self.folder.frames_dir / (rec.frame or "")
-            if not frame.is_file():
+            if not rec.frame or not frame.is_file():
                 journal.mark_redo(rec.step, f"frame {rec.frame} missing: retaking")
                 redo += 1
             elif sha256_file(frame) != rec.sha256:
@@ -214,55 +368,214 @@ class CaptureEngine:
                 redo += 1
         return redo
 
-    def run(self) -> dict[str, int]:
-        """Capture every step not yet done; returns the journal's status counts."""
-        with self.folder.journal() as journal:
-            self.verify_done_steps(journal)
-            records = list(journal.steps())
-            total = len(records)
-            done = sum(r.status == "done" for r in records)
-            exposure = self.plan.capture.exposure_s or self.rig.camera.exposure_s
-            iso = self.plan.capture.iso or self.rig.camera.iso
-            present = None
-            current: StepRecord | None = None
-            try:
-                for rec in records:
-                    if rec.status == "done":
-                        continue
-                    current = rec
-                    target = "white" if rec.kind == REFERENCE else "sample"
-                    if target != present:
-                        self.devices.present(target)
-                        present = target
-                    self._run_step(journal, rec, exposure, iso)
-                    done += 1
-                    if self.progress:
-                        self.progress(done, total, rec)
-            except KeyboardInterrupt:
-                self.devices.stop_motion()
-                where = current.step if current else None
-                journal.log("warning", "interrupted by the operator", where)
-                raise SafetyStop(
-                    f"interrupted at step {where}: all axes stopped, torque on; "
-                    f"continue with `gonio resume {self.folder.path}`"
-                ) from None
-            except GonioError as exc:
-                journal.log("error", str(exc), current.step if current else None)
-                raise
-            return journal.counts()
+    def run(self, steps: Iterable[Step], total: int | None = None) -> dict[str, int]:
+        """Run ``steps`` (replaying what the journal holds as done); returns status counts.
 
-    def _run_step(self, journal: Journal, rec: StepRecord, exposure_s: float, iso: int) -> None:
+        ``total`` is the number of journal steps the plan will produce, for progress; by
+        default the journal's row count (exact for a pre-planned session).
+        """
+        with self.folder.journal() as journal:
+            self._journal = journal
+            try:
+                return self._run(journal, steps, total)
+            finally:
+                self._journal = None
+
+    def _run(self, journal: Journal, steps: Iterable[Step], total: int | None) -> dict[str, int]:
+        self.verify_done_steps(journal)
+        records = list(journal.steps())
+        self._done = sum(r.status == "done" for r in records)
+        self._total = max(total, len(records)) if total is not None else (len(records) or None)
+        self._next = 0
+        self._target: tuple[Pose, dict[str, float]] | None = None
+        self._at: dict[str, float] | None = None
+        self._readback: dict[str, float] = {}
+        self._present: str | None = None
+        self._current: int | None = None
+        self._stop_requested = False
         with self.devices.host_work():
-            journal.mark_started(rec.step)
-        readback = self.devices.move_to(rec.joints_cmd)
+            journal.log("info", f"run started ({self._done} of {len(records)} journal steps done)")
+            for ob in self.observers:
+                ob.start(self.folder, self._total, self._done)
+        try:
+            for step in steps:
+                handler = self.handlers.get(type(step))
+                if handler is None:
+                    raise SessionError(
+                        f"unknown plan step {step!r}: register a handler in SessionEngine.handlers"
+                    )
+                handler(step)
+            with self.devices.host_work():
+                self._check_no_gap(journal)
+        except KeyboardInterrupt:
+            self.devices.stop_motion()
+            journal.try_log("warning", "interrupted by the operator", self._current)
+            exc = SafetyStop(
+                f"interrupted at step {self._current}: all axes stopped, torque on; "
+                f"continue with `gonio resume {self.folder.path}`"
+            )
+            self._notify_error(exc)
+            raise exc from None
+        except GonioError as exc:
+            journal.try_log("error", str(exc), self._current)
+            self._notify_error(exc)
+            raise
+        counts = journal.counts()
+        journal.log("info", f"run ended: {counts}")
+        for ob in self.observers:
+            ob.finish(counts)
+        return counts
+
+    def _notify_error(self, exc: BaseException) -> None:
+        for ob in self.observers:
+            ob.error(exc)
+
+    def _check_no_gap(self, journal: Journal) -> None:
+        left = [r.step for r in journal.steps() if r.step >= self._next and r.status != "done"]
+        if left:
+            raise SessionError(
+                f"{self.folder.path}: the plan ended before journal step {left[0]} "
+                f"({len(left)} not done): run the plan the session was started with"
+            )
+
+    # ------------------------------------------------------------------ journal matching
+    def _claim(
+        self, kind: str, pose: Pose | None, joints: Mapping[str, float], note: str | None = None
+    ) -> StepRecord | None:
+        """The journal row for the next step number; None when it is already done."""
+        assert self._journal is not None
+        n = self._next
+        self._next += 1
+        with self.devices.host_work():
+            return self._match(n, kind, pose, joints, note)
+
+    def _match(
+        self, n: int, kind: str, pose: Pose | None, joints: Mapping[str, float], note: str | None
+    ) -> StepRecord | None:
+        assert self._journal is not None
+        rec = self._journal.record(n)
+        if rec is None:
+            rec = self._journal.add_step(n, kind, None if pose is None else pose.as_tuple(),
+                                         dict(joints), note)
+            if self._total is not None and n >= self._total:
+                self._total = n + 1
+        elif rec.kind != kind or not _same_joints(rec.joints_cmd, joints) or (
+            note is not None and rec.note != note
+        ):
+            raise SessionError(
+                f"{self.folder.path}: plan step {n} is a {kind} at {dict(joints)} but the "
+                f"journal holds a {rec.kind} at {rec.joints_cmd}: resume with the same plan"
+            )
+        return None if rec.status == "done" else rec
+
+    # ------------------------------------------------------------------ handlers
+    def _move(self, step: Move) -> None:
+        if step.joints is None:
+            start = self._target[1] if self._target else self.ref_joints
+            joints = dict(self.planner.joints_for(step.pose, start))
+        else:
+            joints = {k: float(v) for k, v in step.joints.items()}
+            self.planner.check_joints(joints)
+        self._target = (step.pose, joints)
+
+    def _require_target(self, what: str) -> tuple[Pose, dict[str, float]]:
+        if self._target is None:
+            raise SessionError(f"plan step {self._next}: {what} before any Move: add a Move first")
+        return self._target
+
+    def _expose(self, step: Expose) -> None:
+        pose, joints = self._require_target("Expose")
+        base = step.exposure_s or self.plan.capture.exposure_s or self.rig.camera.exposure_s
+        iso = step.iso or self.plan.capture.iso or self.rig.camera.iso
+        multi = len(step.bracket) > 1
+        for factor in step.bracket:
+            rec = self._claim(POSE, pose, joints, f"bracket={factor:g}" if multi else None)
+            if rec is None:
+                continue
+            self._go(joints, "sample")
+            self._shoot(rec, base * factor, iso)
+
+    def _dark(self, step: Dark) -> None:
+        pose, joints = self._require_target("Dark")
+        rec = self._claim(DARK, pose, joints)
+        if rec is None:
+            return
+        light = getattr(self.devices, "light", None)
+        if light is None:
+            raise SessionError("this rig cannot switch its light off for a dark frame: "
+                               "remove Dark steps or use a rig with light control")
+        exposure = step.exposure_s or self.plan.capture.exposure_s or self.rig.camera.exposure_s
+        self._go(joints, None)
+        light(False)
+        try:
+            self._shoot(rec, exposure, step.iso or self.plan.capture.iso or self.rig.camera.iso,
+                        retake_clipped=False)
+        finally:
+            light(True)
+
+    def _reference(self, step: Reference) -> None:
+        pose = step.pose or self.ref_pose
+        joints = dict(step.joints) if step.joints is not None else (
+            self.ref_joints if step.pose is None else dict(self.planner.joints_for(pose))
+        )
+        rec = self._claim(REFERENCE, pose, joints)
+        if rec is None:
+            return
+        exposure = step.exposure_s or self.plan.capture.exposure_s or self.rig.camera.exposure_s
+        self._go(joints, "white")
+        self._shoot(rec, exposure, self.plan.capture.iso or self.rig.camera.iso)
+
+    def _checkpoint(self, step: Checkpoint) -> None:
+        for ob in self.observers:
+            ob.checkpoint(step.label, self._done)
+        if self._stop_requested:
+            assert self._journal is not None
+            self._journal.log("warning", f"stopped at a checkpoint {step.label}".strip(),
+                              self._next)
+            raise SafetyStop(
+                f"stopped at a checkpoint before step {self._next}: "
+                f"continue with `gonio resume {self.folder.path}`"
+            )
+
+    def _custom(self, step: Custom) -> None:
+        rec = self._claim(CUSTOM, None, {}, step.name)
+        if rec is None:
+            return
+        assert self._journal is not None
+        self._current = rec.step
+        with self.devices.host_work():
+            self._journal.mark_started(rec.step)
+        ctx = StepContext(self.folder, self.devices, self._journal, rec.step,
+                          self._target[0] if self._target else None)
+        step.fn(ctx)
+        with self.devices.host_work():
+            self._journal.mark_called(rec.step, self.devices.device_time_s())
+            self._completed(rec.step, None)
+
+    # ------------------------------------------------------------------ device work
+    def _go(self, joints: dict[str, float], target: str | None) -> None:
+        """Present ``target`` and move to ``joints`` if not there already."""
+        if target is not None and target != self._present:
+            self.devices.present(target)
+            self._present = target
+        if self._at != joints:
+            self._readback = self.devices.move_to(joints)
+            self._at = joints
+
+    def _shoot(self, rec: StepRecord, exposure_s: float, iso: int, *,
+               retake_clipped: bool = True) -> None:
+        assert self._journal is not None
+        self._current = rec.step
+        with self.devices.host_work():
+            self._journal.mark_started(rec.step)
         seed_base = self.folder.info.seed * 1_000_003 + rec.step * 17
         name = frame_name(rec.step)
         final = self.folder.frames_dir / name
-        retries = self.rig.camera.max_exposure_retries
+        retries = self.rig.camera.max_exposure_retries if retake_clipped else 0
         for attempt in range(retries + 1):
             try:
                 with atomic_target(final) as tmp:
-                    self.devices.capture(tmp, exposure_s, iso, seed_base + attempt)
+                    self._capture(tmp, exposure_s, iso, seed_base + attempt)
                     with self.devices.host_work():
                         clipped = attempt < retries and self.saturated(tmp)
                     if clipped:
@@ -272,10 +585,75 @@ class CaptureEngine:
                 continue
             break
         with self.devices.host_work():
-            journal.mark_done(
-                rec.step, frame=name, sha256=sha256_file(final), joints_read=readback,
+            self._journal.mark_done(
+                rec.step, frame=name, sha256=sha256_file(final), joints_read=self._readback,
                 exposure_s=exposure_s, iso=iso, device_time_s=self.devices.device_time_s(),
             )
+            self._completed(rec.step, final)
+
+    def _capture(self, tmp: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
+        try:
+            self.devices.capture(tmp, exposure_s, iso, frame_seed)
+        except (OSError, StorageError) as exc:
+            cause = exc if isinstance(exc, OSError) else exc.__cause__
+            if isinstance(cause, OSError) and cause.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise StorageError(
+                    f"disk full writing frame {tmp.name.removesuffix(TMP_SUFFIX)} in "
+                    f"{self.folder.frames_dir}: free space, then `gonio resume {self.folder.path}`"
+                ) from None
+            raise
+
+    def _completed(self, step: int, frame: Path | None) -> None:
+        assert self._journal is not None
+        self._done += 1
+        rec = self._journal.record(step)
+        assert rec is not None
+        event = StepEvent(rec, self._done, self._total, frame)
+        for ob in self.observers:
+            ob.step(event)
+
+
+def _same_joints(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
+    return a.keys() == b.keys() and all(math.isclose(a[k], b[k], abs_tol=1e-9) for k in a)
+
+
+class CaptureEngine:
+    """Runs a pre-planned session's remaining steps (``gonio capture`` / ``gonio resume``).
+
+    A thin wrapper: the journal's rows become step records (:func:`steps_from_journal`)
+    run by a :class:`SessionEngine` with a progress observer.
+    """
+
+    def __init__(
+        self,
+        folder: SessionFolder,
+        devices: CaptureDevices,
+        saturated: Callable[[Path], bool],
+        progress: ProgressCallback | None = None,
+        observers: Sequence[Observer] = (),
+        planner: Planner | None = None,
+    ) -> None:
+        from .observers import ProgressObserver
+
+        obs = list(observers)
+        if progress is not None:
+            obs.append(ProgressObserver(progress))
+        self.engine = SessionEngine(folder, devices, planner or folder.planner(),
+                                    saturated=saturated, observers=obs)
+        self.folder = folder
+
+    def verify_done_steps(self, journal: Journal) -> int:
+        return self.engine.verify_done_steps(journal)
+
+    def run(self) -> dict[str, int]:
+        """Capture every step not yet done; returns the journal's status counts."""
+        if self.folder.info.scripted:
+            raise SessionError(
+                f"{self.folder.path} is a scripted session: rerun its script to continue it"
+            )
+        with self.folder.journal() as journal:
+            records = list(journal.steps())
+        return self.engine.run(steps_from_journal(records))
 
 
 class _Retake(Exception):

@@ -2,8 +2,16 @@
 
 The scene reads the simulator's true servo positions (not the driver's belief), turns them
 into light/camera directions through the rig's kinematics, evaluates the material, and returns
-the radiance image (W·sr⁻¹·m⁻²) per superpixel. The flat sample covers a rectangle around the
-region of interest; the background is black.
+the radiance image (W·sr⁻¹·m⁻²) per superpixel, on a black background.
+
+Two renderers, chosen by the rig file's ``[sample] image_based``:
+
+* region of interest (default): the flat sample covers a rectangle around the region of
+  interest with one uniform radiance, that of the sample's centre;
+* image-based: every superpixel is rendered with its own geometry
+  (:mod:`acquisition.imaging`: pinhole camera, flat or spherical sample, point light), so
+  the radiance is f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat
+  Lambertian plate of the sample's ``size_m`` at the origin, rendered the same way.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ import numpy as np
 
 from simulators.materials import Lambert, Material
 
+from .imaging import frame_geometry
 from .kinematics import Kinematics
 from .rig import RigConfig
 
@@ -64,6 +73,8 @@ def make_scene(
     shape_superpixels: tuple[int, int],
 ) -> Callable[[], np.ndarray]:
     """A zero-argument callable giving the radiance image (h, w, 3) the camera sees now."""
+    if rig.sample.image_based:
+        return make_image_scene(rig, kinematics, true_joints, holder, shape_superpixels)
     h, w = shape_superpixels
     x0, y0, x1, y1 = rig.camera.roi
     m = SAMPLE_MARGIN_SUPERPIXELS
@@ -76,5 +87,38 @@ def make_scene(
             kinematics, true_joints(), holder.material, rig.light_intensity_w_per_sr
         )
         return image
+
+    return scene
+
+
+def render_image(
+    rig: RigConfig,
+    light_dir: np.ndarray,
+    camera_dir: np.ndarray,
+    material: Material,
+    shape_superpixels: tuple[int, int],
+    target_shape: str | None = None,
+) -> np.ndarray:
+    """Radiance image (h, w, 3), W·sr⁻¹·m⁻², of the sample (or, with ``target_shape="flat"``,
+    the white plate) for arm directions in the sample frame; black off the sample."""
+    geo = frame_geometry(rig, light_dir, camera_dir, shape_superpixels, target_shape)
+    f = material.eval_vectors(geo.wi, geo.wo)
+    return geo.scatter(f * (rig.light_intensity_w_per_sr * geo.irradiance)[:, None])
+
+
+def make_image_scene(
+    rig: RigConfig,
+    kinematics: Kinematics,
+    true_joints: Callable[[], dict[str, float]],
+    holder: SampleHolder,
+    shape_superpixels: tuple[int, int],
+) -> Callable[[], np.ndarray]:
+    """Per-pixel scene of an image-based rig, from the TRUE joint angles at each call."""
+
+    def scene() -> np.ndarray:
+        g = kinematics.forward_geometry(true_joints())
+        target = None if holder.current == "sample" else "flat"
+        return render_image(rig, g.light_dir, g.camera_dir, holder.material,
+                            shape_superpixels, target)
 
     return scene

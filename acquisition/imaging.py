@@ -1,0 +1,272 @@
+"""Per-pixel measurement geometry: a calibrated pinhole camera looking at a flat or spherical sample.
+
+Everything is expressed in the sample frame (normal of the flat sample +z, origin at the point
+the arms aim at), in metres. For one frame, :func:`pixel_geometry` gives for every pixel that
+sees a lit part of the sample its light direction ``wi`` and view direction ``wo`` in the local
+shading frame (surface normal +z) and the point light's irradiance term cos θi / r² (m⁻²), so
+that the radiance the pixel sees is
+
+    L = f(wi, wo) · I · cos θi / r²        [W·sr⁻¹·m⁻²]
+
+with I the light's radiant intensity (W·sr⁻¹) and r the light–surface distance.
+
+Conventions
+-----------
+* Pixels are superpixels (2×2 CFA cells, the grid of :func:`calibration.linearize.linearize`);
+  pixel (row i, column j) is centred at image coordinates (x, y) = (j, i); x grows to the
+  right, y downwards, and the camera looks along its +z axis (OpenCV's pinhole model):
+  x = fx · X/Z + cx, y = fy · Y/Z + cy.
+* The camera sits ``camera_distance_m`` along the camera direction from the origin and looks
+  at the origin. Image "up" is the sample frame's +z projected onto the image plane; with the
+  camera exactly at the zenith, up is −x (the limit of that rule at azimuth 0).
+* The light is a point source ``light_distance_m`` along the light direction.
+* The local shading frame's tangents follow Duff et al. (2017), "Building an orthonormal
+  basis, revisited"; for the flat sample it is the sample frame itself. Isotropic BRDFs do not
+  depend on the tangents' azimuth, only on its being the same for ``wi`` and ``wo``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.errors import ConfigError
+
+from .rig import CameraIntrinsics, RigConfig, SampleConfig
+
+ZENITH_TOLERANCE = 1e-9
+"""|sin θ| below which the camera counts as exactly at the zenith (up = −x)."""
+
+
+# ---------------------------------------------------------------------------- camera
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A calibrated pinhole camera in the sample frame.
+
+    Attributes
+    ----------
+    fx, fy, cx, cy:
+        Intrinsics in superpixels.
+    shape:
+        Image size (rows, columns) in superpixels.
+    position:
+        Centre of projection (3,), m.
+    rotation:
+        (3, 3) rows = the camera's x (right), y (down) and z (forward) axes in the sample frame.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    shape: tuple[int, int]
+    position: np.ndarray
+    rotation: np.ndarray
+
+    @classmethod
+    def looking_at_origin(
+        cls,
+        intrinsics: tuple[float, float, float, float],
+        shape: tuple[int, int],
+        camera_dir: np.ndarray,
+        distance_m: float,
+    ) -> PinholeCamera:
+        """Camera ``distance_m`` along unit ``camera_dir`` looking at the origin (see module doc)."""
+        c = np.asarray(camera_dir, dtype=np.float64)
+        c = c / np.linalg.norm(c)
+        forward = -c
+        up = np.array([0.0, 0.0, 1.0]) - c[2] * c  # +z projected onto the image plane
+        norm = np.linalg.norm(up)
+        if norm < ZENITH_TOLERANCE:
+            up = np.array([-1.0, 0.0, 0.0]) if c[2] > 0 else np.array([1.0, 0.0, 0.0])
+        else:
+            up = up / norm
+        right = np.cross(forward, up)
+        right /= np.linalg.norm(right)
+        down = np.cross(forward, right)
+        fx, fy, cx, cy = intrinsics
+        return cls(fx, fy, cx, cy, shape, c * distance_m, np.stack([right, down, forward]))
+
+    def ray_directions(self) -> np.ndarray:
+        """Unit ray directions (rows, columns, 3) through every pixel centre, sample frame."""
+        h, w = self.shape
+        x = (np.arange(w, dtype=np.float64) - self.cx) / self.fx
+        y = (np.arange(h, dtype=np.float64) - self.cy) / self.fy
+        rx, ry, rz = self.rotation
+        d = x[None, :, None] * rx + y[:, None, None] * ry + rz
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return d
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Image coordinates (x, y) in superpixels of points (…, 3) in the sample frame."""
+        cam = (np.asarray(points, dtype=np.float64) - self.position) @ self.rotation.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (self.fx * cam[..., 0] / cam[..., 2] + self.cx,
+                    self.fy * cam[..., 1] / cam[..., 2] + self.cy)
+
+
+def camera_intrinsics(rig: RigConfig, shape: tuple[int, int]) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) in superpixels; a missing principal point is the image centre."""
+    k: CameraIntrinsics | None = rig.camera.intrinsics
+    if k is None:
+        raise ConfigError(
+            f"{rig.path}: image-based measurement needs the camera's pinhole model: "
+            "add [camera.intrinsics] with fx (superpixels)"
+        )
+    h, w = shape
+    return (k.fx, k.fy, (w - 1) / 2.0 if k.cx is None else k.cx,
+            (h - 1) / 2.0 if k.cy is None else k.cy)
+
+
+# ---------------------------------------------------------------------------- sample shapes
+@dataclass(frozen=True)
+class Hits:
+    """Ray–sample intersections: ``hit`` (rows, columns) and, for the hit pixels only (in C
+    order), the surface points (N, 3, m) and unit outward normals (N, 3)."""
+
+    hit: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+
+
+def intersect_flat(
+    origin: np.ndarray, dirs: np.ndarray, size_m: float
+) -> Hits:
+    """Rays against a square of edge ``size_m`` in the plane z = 0, centred at the origin,
+    seen from above (normal +z)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -origin[2] / dirs[..., 2]
+    half = size_m / 2.0
+    x = origin[0] + t * dirs[..., 0]
+    y = origin[1] + t * dirs[..., 1]
+    hit = (t > 0) & (np.abs(x) <= half) & (np.abs(y) <= half) & (origin[2] > 0)
+    points = np.stack([x[hit], y[hit], np.zeros(int(hit.sum()))], axis=-1)
+    normals = np.broadcast_to(np.array([0.0, 0.0, 1.0]), points.shape)
+    return Hits(hit, points, normals)
+
+
+def intersect_sphere(
+    origin: np.ndarray, dirs: np.ndarray, radius_m: float, centre_m: np.ndarray
+) -> Hits:
+    """Rays (unit ``dirs``) against a sphere: the nearest intersection in front of the camera."""
+    oc = origin - np.asarray(centre_m, dtype=np.float64)
+    b = dirs @ oc
+    disc = b * b - (oc @ oc - radius_m * radius_m)
+    hit = disc >= 0.0
+    with np.errstate(invalid="ignore"):
+        t = -b[hit] - np.sqrt(disc[hit])
+    front = t > 0
+    if not front.all():
+        hit[hit] = front
+        t = t[front]
+    points = origin + t[:, None] * dirs[hit]
+    normals = (points - centre_m) / radius_m
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    return Hits(hit, points, normals)
+
+
+def intersect(sample: SampleConfig, origin: np.ndarray, dirs: np.ndarray,
+              shape: str | None = None) -> Hits:
+    """Rays against the rig's sample (or, with ``shape="flat"``, its flat white plate)."""
+    kind = shape or sample.shape
+    if kind == "flat":
+        return intersect_flat(origin, dirs, sample.size_m)
+    if kind == "sphere":
+        return intersect_sphere(origin, dirs, sample.radius_m, np.asarray(sample.centre_m))
+    raise ConfigError(f"sample shape '{kind}' is unknown: use 'flat' or 'sphere'")
+
+
+def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangents (N, 3) and bitangents (N, 3) completing ``normals`` to right-handed frames
+    (Duff et al. 2017; for n = +z they are +x and +y)."""
+    nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
+    sign = np.where(nz >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    t = np.stack([1.0 + sign * nx * nx * a, sign * b, -sign * nx], axis=-1)
+    bt = np.stack([b, sign + ny * ny * a, -ny], axis=-1)
+    return t, bt
+
+
+# ---------------------------------------------------------------------------- per pixel
+@dataclass(frozen=True)
+class PixelGeometry:
+    """The measurement geometry of the pixels that see a lit, visible part of the sample.
+
+    Attributes
+    ----------
+    mask:
+        (rows, columns) bool: the pixel sees the sample, lit (cos θi > 0) and facing the
+        camera (cos θr > 0).
+    wi, wo:
+        (N, 3) unit light and view directions in the local shading frame (normal +z), for the
+        ``mask`` pixels in C order.
+    irradiance:
+        (N,) cos θi / r², m⁻²: times the light's intensity (W·sr⁻¹) the irradiance (W·m⁻²).
+    """
+
+    mask: np.ndarray
+    wi: np.ndarray
+    wo: np.ndarray
+    irradiance: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.wi.shape[0])
+
+    def scatter(self, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """Per-pixel image (rows, columns, …) of ``values`` (N, …) given for the mask pixels."""
+        out = np.full(self.mask.shape + values.shape[1:], fill, dtype=np.float64)
+        out[self.mask] = values
+        return out
+
+
+def pixel_geometry(
+    camera: PinholeCamera,
+    light_pos: np.ndarray,
+    sample: SampleConfig,
+    shape: str | None = None,
+) -> PixelGeometry:
+    """Per-pixel wi, wo (local frame) and cos θi / r² for one camera and point-light position.
+
+    ``shape`` overrides the sample's shape ("flat" for the white-reference plate).
+    """
+    hits = intersect(sample, camera.position, camera.ray_directions(), shape)
+    to_light = np.asarray(light_pos, dtype=np.float64) - hits.points
+    r2 = np.einsum("ij,ij->i", to_light, to_light)
+    wi_world = to_light / np.sqrt(r2)[:, None]
+    wo_world = camera.position - hits.points
+    wo_world /= np.linalg.norm(wo_world, axis=-1, keepdims=True)
+    n = hits.normals
+    cos_i = np.einsum("ij,ij->i", wi_world, n)
+    cos_o = np.einsum("ij,ij->i", wo_world, n)
+    keep = (cos_i > 0.0) & (cos_o > 0.0)
+    mask = hits.hit.copy()
+    mask[mask] = keep
+    n, wi_world, wo_world = n[keep], wi_world[keep], wo_world[keep]
+    t, b = tangent_frames(np.ascontiguousarray(n))
+
+    def local(v: np.ndarray) -> np.ndarray:
+        return np.stack([np.einsum("ij,ij->i", v, t), np.einsum("ij,ij->i", v, b),
+                         np.einsum("ij,ij->i", v, n)], axis=-1)
+
+    wi, wo = local(wi_world), local(wo_world)
+    return PixelGeometry(mask, wi, wo, wi[:, 2] / r2[keep])
+
+
+def frame_geometry(
+    rig: RigConfig,
+    light_dir: np.ndarray,
+    camera_dir: np.ndarray,
+    shape_superpixels: tuple[int, int],
+    target_shape: str | None = None,
+) -> PixelGeometry:
+    """:func:`pixel_geometry` for the rig's camera and light at the given arm directions
+    (unit vectors in the sample frame, e.g. from ``Kinematics.forward_geometry``)."""
+    camera = PinholeCamera.looking_at_origin(
+        camera_intrinsics(rig, shape_superpixels), shape_superpixels, camera_dir,
+        rig.camera_distance_m,
+    )
+    light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
+    return pixel_geometry(camera, light_pos, rig.sample, target_shape)

@@ -1,0 +1,224 @@
+"""Image-based reduction: every valid pixel on the sample of every frame is one BRDF sample.
+
+Per frame (RAW → :func:`calibration.linearize.linearize`, in DN/s), the rig's pinhole camera
+and point light at the frame's read-back joint angles give each pixel that sees a lit part of
+the sample its local (wi, wo) and irradiance term cos θi / r² (:mod:`acquisition.imaging`).
+
+Absolute scale
+--------------
+A pixel value is P = K · L with L = f · I · cos θi / r², where K (DN/s per W·sr⁻¹·m⁻²) is the
+camera's response and I (W·sr⁻¹) the light's intensity; only the product C = K · I is needed.
+The white reference is a flat Lambertian plate of reflectance ρ (f = ρ/π) and edge
+``[sample] size_m`` at the origin, captured by the same pipeline at the rig's white-reference
+pose. Over the region of interest's valid pixels on the plate,
+
+    C = Σ P_ref / Σ (ρ/π · cos θi / r²)          (per channel, per reference frame)
+
+using each plate pixel's own geometry (for a distant light and camera this reduces to the ROI
+formula of :mod:`acquisition.reduce`). C is interpolated linearly in step between the
+reference frames (correcting slow drift), and every sample pixel gives
+
+    f = P / (C · cos θi / r²)                    [sr⁻¹].
+
+The same calibration serves a flat or a spherical sample, because it measures the camera and
+light, not the sample.
+
+Samples are binned frame by frame into a :class:`~acquisition.tables.MerlTable` and the plan's
+:class:`~acquisition.tables.IsotropicTable` (count, sum, sum of squares per bin); no more than
+one frame's samples are held at any time.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration.linearize import LinearImage, linearize
+from calibration.raw import load_raw
+from drivers.errors import SessionError
+
+from .imaging import PixelGeometry, frame_geometry
+from .journal import StepRecord
+from .kinematics import poses_from_directions
+from .merl import write_merl
+from .reduce import Reduction
+from .rig import RigConfig
+from .session import REFERENCE, SessionFolder
+from .tables import IsotropicTable, MerlTable
+
+DEFAULT_MIN_COS = 0.02
+"""Samples with cos θi or cos θr below this (beyond ~88.9°) are dropped: at the sample's
+silhouette and terminator a pixel's geometry is least certain."""
+
+
+@dataclass(frozen=True)
+class FrameSamples:
+    """The BRDF samples of one frame: local unit directions (N, 3) and BRDF (N, 3) in sr⁻¹."""
+
+    step: int
+    wi: np.ndarray
+    wo: np.ndarray
+    brdf: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.wi.shape[0])
+
+
+@dataclass
+class ImageReduction(Reduction):
+    """What :func:`reduce_image_session` produced: the isotropic table and the MERL table."""
+
+    merl: MerlTable
+    samples: int
+    """BRDF samples taken from the frames (before binning)."""
+
+
+def _linear(folder: SessionFolder, rec: StepRecord) -> LinearImage:
+    return linearize(load_raw(folder.frames_dir / str(rec.frame)))
+
+
+def _geometry(rig: RigConfig, rec: StepRecord, shape: tuple[int, int],
+              target: str | None = None) -> PixelGeometry:
+    g = rig.kinematics().forward_geometry(rec.joints_read or rec.joints_cmd)
+    return frame_geometry(rig, g.light_dir, g.camera_dir, shape, target)
+
+
+def white_calibration(
+    image: LinearImage, geo: PixelGeometry, roi: tuple[int, int, int, int],
+    reflectance: np.ndarray,
+) -> tuple[np.ndarray, int]:
+    """C = K·I (3,) from a flat white-plate frame, and the number of pixels used.
+
+    Uses the valid pixels of ``roi`` (x0, y0, x1, y1, superpixels) that see the lit plate.
+    """
+    x0, y0, x1, y1 = roi
+    in_roi = np.zeros(geo.mask.shape, dtype=bool)
+    in_roi[y0:y1, x0:x1] = True
+    use = (in_roi & image.valid)[geo.mask]
+    n = int(use.sum())
+    if n == 0:
+        return np.full(3, np.nan), 0
+    signal = image.rgb[geo.mask][use].sum(axis=0)
+    model = geo.irradiance[use].sum() * np.asarray(reflectance, dtype=np.float64) / np.pi
+    return signal / model, n
+
+
+def frame_samples(
+    image: LinearImage, geo: PixelGeometry, calibration: np.ndarray, step: int,
+    min_cos: float = DEFAULT_MIN_COS,
+) -> FrameSamples:
+    """BRDF samples f = P / (C · cos θi / r²) of a frame's valid pixels on the sample."""
+    keep = image.valid[geo.mask] & (geo.wi[:, 2] >= min_cos) & (geo.wo[:, 2] >= min_cos)
+    rgb = image.rgb[geo.mask][keep]
+    brdf = rgb / (geo.irradiance[keep][:, None] * calibration)
+    return FrameSamples(step, geo.wi[keep], geo.wo[keep], brdf)
+
+
+def iter_session_samples(
+    session_dir: str | Path,
+    *,
+    min_cos: float = DEFAULT_MIN_COS,
+    max_frames: int | None = None,
+    drift: list[float] | None = None,
+) -> Iterator[FrameSamples]:
+    """Yield the BRDF samples of every captured sample frame of an image-based session, one
+    frame at a time (at most ``max_frames``). ``drift``, if given, receives the white
+    reference's peak-to-peak change in % of its mean."""
+    folder = SessionFolder(session_dir)
+    rig = folder.rig()
+    if not rig.sample.image_based:
+        raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
+    with folder.journal() as journal:
+        records = [r for r in journal.steps() if r.status == "done"]
+    if not records:
+        raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
+    rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
+    steps, cals = [], []
+    for rec in (r for r in records if r.kind == REFERENCE):
+        image = _linear(folder, rec)
+        geo = _geometry(rig, rec, image.valid.shape, "flat")
+        cal, n = white_calibration(image, geo, rig.camera.roi, rho)
+        if n == 0:
+            raise SessionError(
+                f"{folder.path}: white-reference frame {rec.frame} has no valid pixel on the plate "
+                "in the ROI: move [camera] roi onto the plate or shorten the exposure"
+            )
+        steps.append(rec.step)
+        cals.append(cal)
+    if not cals:
+        raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
+    ref_steps, ref_cals = np.array(steps, float), np.array(cals)
+    if drift is not None:
+        drift.append(float(np.max(np.ptp(ref_cals, axis=0) / np.mean(ref_cals, axis=0)) * 100.0))
+    poses = [r for r in records if r.kind != REFERENCE][:max_frames]
+    for rec in poses:
+        image = _linear(folder, rec)
+        geo = _geometry(rig, rec, image.valid.shape)
+        cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
+        yield frame_samples(image, geo, cal, rec.step, min_cos)
+
+
+def reduce_image_session(
+    session_dir: str | Path,
+    progress: Callable[[int, int], None] | None = None,
+    *,
+    merl_path: str | Path | None = None,
+    min_cos: float = DEFAULT_MIN_COS,
+    max_frames: int | None = None,
+) -> ImageReduction:
+    """Bin every valid sample pixel of an image-based session into the MERL and isotropic tables.
+
+    Parameters
+    ----------
+    session_dir
+        The session folder (its rig file must have ``[sample] image_based = true``).
+    progress
+        ``progress(done, total)`` after each frame.
+    merl_path
+        If given, the MERL table's mean is also written there as a MERL ``.binary`` file.
+    min_cos
+        Drop samples with cos θi or cos θr below this.
+    max_frames
+        Reduce only the first N sample frames (e.g. of a capture still running).
+    """
+    t0 = time.monotonic()
+    folder = SessionFolder(session_dir)
+    rig, plan = folder.rig(), folder.plan()
+    with folder.journal() as journal:
+        done = [r for r in journal.steps() if r.status == "done"]
+    n_refs = sum(r.kind == REFERENCE for r in done)
+    total = len([r for r in done if r.kind != REFERENCE][:max_frames])
+    provenance = {
+        "session": str(folder.path.resolve()),
+        "rig": rig.name,
+        "plan": plan.name,
+        "material": folder.info.material,
+        "seed": folder.info.seed,
+        "image_based": True,
+        "sample_shape": rig.sample.shape,
+        "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
+                           plan.table.delta_phi_edges, provenance=provenance)
+    merl = MerlTable(provenance)
+    drift: list[float] = []
+    samples = frames = 0
+    for fs in iter_session_samples(folder.path, min_cos=min_cos, max_frames=max_frames,
+                                   drift=drift):
+        merl.add_vectors(fs.wi, fs.wo, fs.brdf)
+        angles = poses_from_directions(fs.wi, fs.wo)
+        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
+        samples += fs.count
+        frames += 1
+        if progress:
+            progress(frames, total)
+    for t in (table, merl):
+        t.provenance["reference_drift_pct"] = drift[0]
+    if merl_path is not None:
+        write_merl(merl_path, merl)
+    return ImageReduction(table, frames, n_refs, drift[0], time.monotonic() - t0, merl, samples)

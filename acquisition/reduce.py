@@ -9,10 +9,17 @@ signal S at incidence θi gives
 
 because the pixel value is proportional to radiance L = f · E and the point light's
 irradiance is E = I cos θi / r² at both geometries.
+
+With a calibration bundle (``bundle=`` or the one copied into the session folder), every
+frame is linearized with the bundle's master dark for its exposure and ISO, flat field,
+bad-pixel map and noise model; the noise model's variance of each ROI mean (and of the
+interpolated reference) is propagated to every sample, and :attr:`Reduction.predicted_variance`
+holds the predicted variance of each bin's mean.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.linearize import linearize, roi_mean
 from calibration.raw import load_raw
 from drivers.errors import SessionError
@@ -37,6 +45,8 @@ class FrameSignal:
     signal: np.ndarray
     variance: np.ndarray
     n_valid: int
+    at: float | None = None
+    """When the frame was taken (device clock s, else host s); None: use the step number."""
 
 
 @dataclass
@@ -49,11 +59,24 @@ class Reduction:
     drift_pct: float
     """Peak-to-peak change of the white reference over the session, % of its mean."""
     seconds: float
+    predicted_variance: np.ndarray | None = None
+    """Noise-model variance of each bin's mean (table shape × 3, sr⁻²; NaN for empty bins),
+    when a calibration bundle with a noise model was used; else None."""
+    bundle: Path | None = None
+    """The calibration bundle applied, if any."""
 
 
-def frame_signal(path: Path, roi: tuple[int, int, int, int], step: int) -> FrameSignal:
-    """Linearize a frame and average its region of interest."""
-    image = linearize(load_raw(path))
+def frame_signal(
+    path: Path, roi: tuple[int, int, int, int], step: int,
+    bundle: CalibrationBundle | None = None,
+) -> FrameSignal:
+    """Linearize a frame (with the bundle's corrections, if given) and average its ROI.
+
+    The variance is the noise model's when the bundle has one for the frame's ISO, else the
+    scatter over the ROI.
+    """
+    frame = load_raw(path)
+    image = linearize(frame) if bundle is None else bundle.linearize(frame)
     x0, y0, x1, y1 = roi
     mean, var, n = roi_mean(image, (x0, y0, x1 - x0, y1 - y0))
     return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
@@ -61,22 +84,65 @@ def frame_signal(path: Path, roi: tuple[int, int, int, int], step: int) -> Frame
 
 def reference_curve(refs: list[FrameSignal]) -> Callable[[int], np.ndarray]:
     """White-reference signal at any step, interpolated linearly between its captures."""
-    steps = np.array([r.step for r in refs], float)
-    values = np.array([r.signal for r in refs])
-
-    def at(step: int) -> np.ndarray:
-        return np.array([np.interp(step, steps, values[:, c]) for c in range(values.shape[1])])
-
+    at, _ = reference_curves(refs)
     return at
+
+
+def reference_curves(
+    refs: list[FrameSignal],
+) -> tuple[Callable[[int], np.ndarray], Callable[[int], np.ndarray]]:
+    """Reference signal and its variance at any time (``FrameSignal.at``, else step number),
+    interpolated linearly between captures: with weights w, 1 − w the variance is
+    w²·v₀ + (1 − w)²·v₁."""
+    steps = np.array([r.step if r.at is None else r.at for r in refs], float)
+    values = np.array([r.signal for r in refs])
+    variances = np.array([r.variance for r in refs])
+    eye = np.eye(len(refs))
+
+    def at(when: float) -> np.ndarray:
+        return np.array([np.interp(when, steps, values[:, c]) for c in range(values.shape[1])])
+
+    def var_at(when: float) -> np.ndarray:
+        w = np.array([np.interp(when, steps, eye[k]) for k in range(len(refs))])
+        return (w**2) @ variances
+
+    return at, var_at
+
+
+def find_bundle(folder: SessionFolder, bundle: str | Path | None) -> CalibrationBundle | None:
+    """The bundle given, else the session's copied calibration if it is a bundle, else None."""
+    if bundle is not None:
+        return CalibrationBundle.open(bundle)
+    copied = folder.calibration if hasattr(folder, "calibration") else None
+    if copied is not None and (Path(copied) / SCALARS_FILE).is_file():
+        return CalibrationBundle.open(copied)
+    return None
 
 
 def reduce_session(
     session_dir: str | Path,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    bundle: str | Path | None = None,
+    reference_axis: str = "step",
 ) -> Reduction:
-    """Linearize every captured frame of a session and bin it into its plan's table."""
+    """Linearize every captured frame of a session and bin it into its plan's table.
+
+    Parameters
+    ----------
+    bundle:
+        Calibration bundle folder to apply; default the session's own copy, if any.
+    reference_axis:
+        ``"step"`` interpolates the white reference by step number (reproducible: an
+        interrupted and resumed session reduces exactly like an uninterrupted one);
+        ``"time"`` by capture time (device clock where it never runs back, else host clock),
+        which follows a light drift through uneven step durations.
+    """
+    if reference_axis not in ("step", "time"):
+        raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
     t0 = time.monotonic()
     folder = SessionFolder(session_dir)
+    cal = find_bundle(folder, bundle)
     rig, plan = folder.rig(), folder.plan()
     kin = rig.kinematics()
     with folder.journal() as journal:
@@ -84,15 +150,29 @@ def reduce_session(
     if not records:
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
 
+    # Interpolate the reference in time (the light drifts with time, not with step number):
+    # the device clock where every frame has one and it never runs back (a resumed simulated
+    # rig restarts its clock), else the host clock, else the step number.
+    dev_t = [r.device_time_s for r in sorted(records, key=lambda r: r.step)]
+    if reference_axis == "step":
+        when = {r.step: float(r.step) for r in records}
+    elif all(t is not None for t in dev_t) and all(np.diff(np.array(dev_t, float)) >= 0):
+        when = {r.step: float(r.device_time_s) for r in records}  # type: ignore[arg-type]
+    elif all(r.completed_at is not None for r in records):
+        when = {r.step: float(r.completed_at) for r in records}  # type: ignore[arg-type]
+    else:
+        when = {r.step: float(r.step) for r in records}
+
     def signal(rec: StepRecord) -> FrameSignal:
-        return frame_signal(folder.frames_dir / str(rec.frame), rig.camera.roi, rec.step)
+        fs = frame_signal(folder.frames_dir / str(rec.frame), rig.camera.roi, rec.step, cal)
+        return dataclasses.replace(fs, at=when[rec.step])
 
     refs = [signal(r) for r in records if r.kind == REFERENCE]
     if not refs:
         raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
     if any(r.n_valid == 0 for r in refs):
         raise SessionError(f"{folder.path}: a white-reference frame is saturated or dark in the ROI")
-    ref_at = reference_curve(refs)
+    ref_at, ref_var_at = reference_curves(refs)
     ref_signals = np.array([r.signal for r in refs])
     drift = float(np.max(np.ptp(ref_signals, axis=0) / np.mean(ref_signals, axis=0)) * 100.0)
 
@@ -111,6 +191,12 @@ def reduce_session(
             "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         },
     )
+    if cal is not None:
+        table.provenance["calibration_bundle"] = str(cal.path.resolve())
+    with_noise = cal is not None and all(
+        cal.noise_for(float(r.iso)) is not None for r in records if getattr(r, "iso", None))
+    var_sum = np.zeros((int(np.prod(table.shape)), 3)) if with_noise else None
+    var_n = np.zeros(int(np.prod(table.shape))) if with_noise else None
     poses = [r for r in records if r.kind != REFERENCE]
     for k, rec in enumerate(poses):
         fs = signal(rec)
@@ -118,11 +204,23 @@ def reduce_session(
         cos_i = np.cos(np.radians(pose.theta_i))
         if fs.n_valid == 0 or cos_i <= 0:
             continue
-        f = fs.signal / ref_at(rec.step) * (rho / np.pi) * (cos_ref / cos_i)
+        ref = ref_at(when[rec.step])
+        f = fs.signal / ref * (rho / np.pi) * (cos_ref / cos_i)
+        if var_sum is not None and var_n is not None:
+            var_f = f**2 * (fs.variance / fs.signal**2 + ref_var_at(when[rec.step]) / ref**2)
+            idx = int(np.ravel(table.flat_index(pose.theta_i, pose.theta_r, pose.delta_phi))[0])
+            if idx >= 0 and np.all(np.isfinite(var_f)):
+                var_sum[idx] += var_f
+                var_n[idx] += 1
         table.add(
             np.array([pose.theta_i]), np.array([pose.theta_r]), np.array([pose.delta_phi]),
             f[None, :],
         )
         if progress:
             progress(k + 1, len(poses))
-    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0)
+    predicted = None
+    if var_sum is not None and var_n is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            predicted = (var_sum / var_n[:, None] ** 2).reshape(*table.shape, 3)
+    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0, predicted,
+                     None if cal is None else cal.path)

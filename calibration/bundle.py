@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 import OpenImageIO as oiio
 
-from calibration.linearize import NoiseModel
+from calibration.linearize import LinearImage, NoiseModel, linearize
+from calibration.raw import RawFrame
 from drivers.errors import CalibrationError, StorageError
 
 BUNDLE_FORMAT = "gonio-calibration-bundle"
@@ -108,6 +109,7 @@ class CalibrationBundle:
     def __init__(self, path: Path, scalars: dict[str, Any]) -> None:
         self.path = path
         self._scalars = scalars
+        self._cache: dict[str, np.ndarray | None] = {}
 
     # -- opening ---------------------------------------------------------------------------
     @classmethod
@@ -148,6 +150,7 @@ class CalibrationBundle:
         return cls(path, scalars)
 
     def _save(self) -> None:
+        self._cache.clear()
         file = self.path / SCALARS_FILE
         tmp = file.with_name(file.name + ".tmp")
         tmp.write_text(json.dumps(self._scalars, indent=2, sort_keys=True) + "\n")
@@ -221,6 +224,35 @@ class CalibrationBundle:
         if entry is None:
             return None
         return NoiseModel(tuple(entry["gain_e_per_dn"]), tuple(entry["read_noise_dn"]), entry["iso"])
+
+    # -- applying it ------------------------------------------------------------------------
+    def linearize(self, frame: RawFrame, *, require_noise: bool = False, **kwargs: Any) -> LinearImage:
+        """:func:`~calibration.linearize.linearize` with this bundle's dark (for the frame's
+        exposure and ISO, if measured), flat, bad pixels and noise model (for its ISO).
+
+        Raises
+        ------
+        CalibrationError
+            ``require_noise`` and no noise model at the frame's ISO.
+        """
+        if "flat" not in self._cache:
+            self._cache["flat"] = self.flat
+            self._cache["bad"] = self.bad_pixels
+        exposure = kwargs.get("exposure_s") or frame.exposure_s
+        dark = None
+        if exposure is not None and frame.iso is not None:
+            key = f"dark:{exposure:.9g}:{frame.iso:g}"
+            if key not in self._cache:
+                self._cache[key] = self.dark_for(exposure, frame.iso)
+            dark = self._cache[key]
+        noise = self.noise_for(frame.iso) if frame.iso is not None else None
+        if noise is None and require_noise:
+            raise CalibrationError(
+                f"{self.path}: no noise model for ISO {frame.iso} ({frame.path}); run "
+                f"gonio calibrate noise --iso {frame.iso}"
+            )
+        return linearize(frame, dark=dark, flat=self._cache["flat"], bad_pixels=self._cache["bad"],
+                         noise=noise, **kwargs)
 
     # -- white reference ----------------------------------------------------------------------
     def set_white(self, white: Mapping[str, Any], prov: Mapping[str, Any]) -> None:

@@ -19,6 +19,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.plan",
     "acquisition.cli.demo",
     "acquisition.cli.sim",
+    "acquisition.cli.console",
+    "acquisition.cli.inspect",
+    "acquisition.cli.calibrate",
 )
 """Modules that register sub-commands, in the order ``gonio --help`` lists them."""
 

@@ -19,7 +19,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.plan",
     "acquisition.cli.demo",
     "acquisition.cli.sim",
-    "acquisition.cli.console",
     "acquisition.cli.inspect",
     "acquisition.cli.calibrate",
 )

@@ -595,8 +595,11 @@ class SessionEngine:
         try:
             self.devices.capture(tmp, exposure_s, iso, frame_seed)
         except (OSError, StorageError) as exc:
-            cause = exc if isinstance(exc, OSError) else exc.__cause__
-            if isinstance(cause, OSError) and cause.errno in (errno.ENOSPC, errno.EDQUOT):
+            full = (errno.ENOSPC, errno.EDQUOT)
+            cause = exc.__cause__
+            if getattr(exc, "errno", None) in full or (
+                isinstance(cause, OSError) and cause.errno in full
+            ):
                 raise StorageError(
                     f"disk full writing frame {tmp.name.removesuffix(TMP_SUFFIX)} in "
                     f"{self.folder.frames_dir}: free space, then `gonio resume {self.folder.path}`"

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 
 from acquisition import api
+from acquisition.interrupts import sigint_stops_motion
 
+from .console import operator_output
 from .progress import step_bar
 
 
@@ -23,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="new session folder (must not exist)")
     p.add_argument("--material", help="material the simulated camera sees, e.g. lambert:albedo=0.5")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated devices")
+    p.add_argument("--calibration", metavar="PATH",
+                   help="calibration file or folder used; copied into the session")
     add_sim_fault_option(p)
     p.set_defaults(func=run_capture)
 
@@ -52,14 +56,15 @@ def _finish(result: api.CaptureResult) -> int:
 
 def run_capture(args: argparse.Namespace) -> int:
     print_estimate(api.plan_sweep(args.plan, args.rig))
-    with step_bar("capture") as bar:
+    with operator_output(), sigint_stops_motion(), step_bar("capture") as bar:
         result = api.capture(args.rig, args.plan, args.out, material=args.material,
-                             seed=args.seed, sim_faults=args.sim_fault, progress=bar)
+                             seed=args.seed, sim_faults=args.sim_fault, progress=bar,
+                             calibration=args.calibration)
     return _finish(result)
 
 
 def run_resume(args: argparse.Namespace) -> int:
-    with step_bar("resume") as bar:
+    with operator_output(), sigint_stops_motion(), step_bar("resume") as bar:
         result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar)
     return _finish(result)
 

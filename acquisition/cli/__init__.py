@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.plan",
     "acquisition.cli.demo",
     "acquisition.cli.sim",
+    "acquisition.cli.console",
     "acquisition.cli.inspect",
     "acquisition.cli.calibrate",
 )

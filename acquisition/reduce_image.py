@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -73,8 +73,8 @@ class FrameSamples:
 class ImageReduction(Reduction):
     """What :func:`reduce_image_session` produced: the isotropic table and the MERL table."""
 
-    merl: MerlTable
-    samples: int
+    merl: MerlTable = field(default_factory=MerlTable)
+    samples: int = 0
     """BRDF samples taken from the frames (before binning)."""
 
 
@@ -221,4 +221,5 @@ def reduce_image_session(
         t.provenance["reference_drift_pct"] = drift[0]
     if merl_path is not None:
         write_merl(merl_path, merl)
-    return ImageReduction(table, frames, n_refs, drift[0], time.monotonic() - t0, merl, samples)
+    return ImageReduction(table=table, frames=frames, references=n_refs, drift_pct=drift[0],
+                          seconds=time.monotonic() - t0, merl=merl, samples=samples)

@@ -172,11 +172,12 @@ def test_torque_off_is_refused_before_sending(mc, sim, bus):
 
 
 def test_overload_during_a_move_names_the_axis_and_stops_all(clock):
-    with SimServoBus([1, 2, 3], clock=clock, faults=["overload:id=2,after=0.3"]) as sim, \
+    with SimServoBus([1, 2, 3], clock=clock, faults=["overload:id=2,after=0.5"]) as sim, \
             ServoBus(sim.port, name="arms") as bus:
         mc = MotionController(AXES, bus, guard=lambda targets: None)
-        mc.apply_profiles()
-        mc.set_torque(True)
+        with clock.frozen():  # set-up costs no simulated time, however loaded the machine
+            slow_down(mc)
+            mc.set_torque(True)
         with pytest.raises(OverloadError) as info:
             mc.move_to({"theta_i": 80.0, "theta_r": 80.0, "phi": 160.0})
         message = str(info.value)
@@ -189,7 +190,14 @@ def test_overload_during_a_move_names_the_axis_and_stops_all(clock):
         assert 0 < AXES[0].ticks_to_deg(status[1].goal) < 80
 
 
+def slow_down(mc: MotionController) -> None:
+    """Profiles slow enough (≈ 40 °/s) that a loaded test machine can stop a move mid-way."""
+    for name, axis in mc.axes.items():
+        mc._bus[name].set_profile(axis.servo_id, velocity=30, acceleration=10)
+
+
 def test_stop_halts_a_move_in_progress(mc, sim):
+    slow_down(mc)
     outcome = {}
 
     def run():
@@ -216,6 +224,7 @@ def test_stop_halts_a_move_in_progress(mc, sim):
 
 
 def test_ctrl_c_during_a_move_stops_all_axes(mc, sim):
+    slow_down(mc)
     calls = []
 
     def sleep(s):

@@ -7,10 +7,12 @@ exponential backoff and hidden from the caller; a servo that stays silent raises
 Status packets whose Alert bit is set make the bus read Hardware Error Status and raise the
 typed :class:`~drivers.dynamixel.codes.ServoHardwareError` subclass.
 
-Sync reads do not use ``GroupSyncRead.rxPacket``: that stops at the first missing reply and the
-SDK's ``readRx`` discards the replies of the other servos while looking for it. The bus sends the
-SYNC_READ with the SDK and collects every status packet by ID with the SDK's ``rxPacket``; only
-the servos that did not answer are asked again.
+Packets are framed (stuffing, CRC) and parsed by the SDK (``txPacket``, ``syncReadTx``,
+``rxPacket``), but the bus waits for replies in ``select`` instead of the SDK's busy-polling
+loop, which on a loaded machine starves whoever has to answer. Sync reads do not use
+``GroupSyncRead.rxPacket``: that stops at the first missing reply and the SDK's ``readRx``
+discards the replies of the other servos while looking for it; the bus collects every status
+packet by ID and asks again only the servos that did not answer.
 
 Low latency on real hardware
 ----------------------------
@@ -28,9 +30,10 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import select
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import serial
@@ -39,6 +42,10 @@ from dynamixel_sdk import (
     COMM_RX_TIMEOUT,
     COMM_SUCCESS,
     COMM_TX_FAIL,
+    INST_PING,
+    INST_READ,
+    INST_REBOOT,
+    INST_WRITE,
     GroupSyncWrite,
     PacketHandler,
     PortHandler,
@@ -281,67 +288,88 @@ class ServoBus:
             f"{self.describe(servo_id)} refused {what}: {packet_error_text(error)}"
         )
 
-    def _txrx(self, servo_id: int, call, attempts: int | None = None):
-        """Run ``call(port)`` -> (payload, result, error) with retries; return (payload, error).
+    def _wait_for_reply(self, port: PortHandler) -> None:
+        """Block (without the GIL, without burning CPU) until reply bytes arrive or the SDK's
+        packet timeout is over; the SDK's own receive loop busy-polls, which on a loaded
+        machine starves whoever must answer (an in-process simulator, other processes)."""
+        if port.ser.in_waiting:
+            return
+        remaining_ms = port.packet_timeout - port.getTimeSinceStart()
+        if remaining_ms > 0:
+            select.select([port.ser.fileno()], [], [], remaining_ms / 1000.0)
 
-        A CRC error reported by the servo (it received a garbled packet) is retried too.
-        """
+    def _exchange_once(self, servo_id: int, instruction: int, params: list[int],
+                       reply_size: int) -> tuple[int, bytes, int]:
+        """Send one instruction packet; return (SDK result, data, error byte) of its reply."""
+        port = self._begin()
+        length = len(params) + 3
+        packet = [0, 0, 0, 0, servo_id, length & 0xFF, length >> 8, instruction, *params, 0, 0]
+        try:
+            result = self._ph.txPacket(port, packet)  # stuffing, header and CRC by the SDK
+            if result != COMM_SUCCESS:
+                return result, b"", 0
+            port.setPacketTimeout(reply_size + 11)
+            for _ in range(8):
+                self._wait_for_reply(port)
+                reply, result = self._ph.rxPacket(port, False)
+                if result != COMM_SUCCESS:
+                    return result, b"", 0
+                if reply[4] != servo_id:
+                    continue  # someone else's (late) packet
+                error = reply[8]
+                data = bytes(reply[9 : 9 + reply_size])
+                if (error & ~ALERT_BIT) == ERRNUM_CRC:
+                    return COMM_RX_CORRUPT, b"", 0  # the servo got a garbled packet: resend
+                if not (error & ~ALERT_BIT) and len(data) != reply_size:
+                    continue  # a late reply to an older request
+                return COMM_SUCCESS, data, error
+            return COMM_RX_CORRUPT, b"", 0
+        except (serial.SerialException, OSError):
+            return COMM_TX_FAIL, b"", 0
+        finally:
+            port.is_using = False
+
+    def _exchange(self, servo_id: int, instruction: int, params: Sequence[int] = (),
+                  reply_size: int = 0, attempts: int | None = None) -> tuple[bytes, int]:
+        """One instruction to one servo with bounded retries: (reply data, error byte)."""
         result = COMM_TX_FAIL
         attempts = self.retries + 1 if attempts is None else attempts
         for attempt in range(attempts):
             with self._lock:
                 if attempt:
                     self._pause(attempt)
-                port = self._begin()
-                try:
-                    payload, result, error = call(port)
-                except (serial.SerialException, OSError, IndexError):
-                    payload, result, error = None, COMM_TX_FAIL, 0
-                if result == COMM_SUCCESS and (error & ~ALERT_BIT) != ERRNUM_CRC:
-                    return payload, error
+                result, data, error = self._exchange_once(servo_id, instruction, list(params),
+                                                          reply_size)
+            if result == COMM_SUCCESS:
+                return data, error
         raise self._silent([servo_id], result, attempts)
 
     # ------------------------------------------------------------------ single-servo I/O
     def read(self, servo_id: int, address: int, size: int, *, signed: bool = True,
              check_alert: bool = True) -> int:
         """Read ``size`` bytes at ``address`` from one servo as one little-endian integer."""
-
-        def call(port):
-            data, result, error = self._ph.readTxRx(port, servo_id, address, size)
-            if result == COMM_SUCCESS and not (error & ~ALERT_BIT) and len(data) != size:
-                result = COMM_RX_CORRUPT
-            return data, result, error
-
-        data, error = self._txrx(servo_id, call)
+        data, error = self._exchange(servo_id, INST_READ, _le(address, 2) + _le(size, 2), size)
         self._check(servo_id, error, f"a read of address {address}", check_alert)
-        return int.from_bytes(bytes(data), "little", signed=signed)
+        return int.from_bytes(data, "little", signed=signed)
 
     def write(self, servo_id: int, address: int, size: int, value: int, *,
               check_alert: bool = True) -> None:
-        """Write one item and check the servo's status reply."""
-
-        def call(port):
-            result, error = self._ph.writeTxRx(port, servo_id, address, size, _le(value, size))
-            return None, result, error
-
-        what = f"writing {value} to address {address}"
-        _, error = self._txrx(servo_id, call)
-        self._check(servo_id, error, what, check_alert)
+        """Write one item (``size`` bytes) and check the servo's status reply."""
+        _, error = self._exchange(servo_id, INST_WRITE, _le(address, 2) + _le(value, size))
+        self._check(servo_id, error, f"writing {value} to address {address}", check_alert)
 
     def ping(self, servo_id: int) -> int:
         """Model number of ``servo_id``; :class:`ServoSilentError` if it does not answer."""
-
-        model, _ = self._txrx(servo_id, lambda port: self._ph.ping(port, servo_id))
-        return model
+        data, _ = self._exchange(servo_id, INST_PING, (), 3)
+        return int.from_bytes(data[:2], "little")
 
     def try_ping(self, servo_id: int, attempts: int = 1) -> int | None:
         """Model number, or None if the servo stays silent for ``attempts`` tries."""
         try:
-            model, _ = self._txrx(servo_id, lambda port: self._ph.ping(port, servo_id),
-                                  attempts=max(1, attempts))
+            data, _ = self._exchange(servo_id, INST_PING, (), 3, attempts=max(1, attempts))
         except ServoSilentError:
             return None
-        return model
+        return int.from_bytes(data[:2], "little")
 
     def require(self, ids: Iterable[int]) -> dict[int, int]:
         """Ping every ID; one error listing all that are missing. Returns ``{id: model}``."""
@@ -392,10 +420,9 @@ class ServoBus:
                         hits = {i: v[0] for i, v in data.items() if i in wanted}
                     else:
                         for i in wanted:
-                            port = self._begin()
-                            model, result, _ = self._ph.ping(port, i)
+                            result, data, _ = self._exchange_once(i, INST_PING, [], 3)
                             if result == COMM_SUCCESS:
-                                hits[i] = model
+                                hits[i] = int.from_bytes(data[:2], "little")
                     if hits:
                         found[baud] = hits
             finally:
@@ -441,6 +468,7 @@ class ServoBus:
             corrupt = 0
             # Each call returns one packet, a corrupt one, or the timeout; bound the loop.
             for _ in range(2 * len(ids) + 4):
+                self._wait_for_reply(port)
                 packet, result = self._ph.rxPacket(port, False)
                 if result == COMM_SUCCESS:
                     sid, error = packet[4], packet[8]
@@ -579,14 +607,8 @@ class ServoBus:
             if not 0 <= value <= 32767:
                 raise ConfigError(f"{self.describe(servo_id)}: profile {what} {value} is outside "
                                   f"0..32767 (X-series units)")
-        data = _le(acceleration, 4) + _le(velocity, 4)
-
-        def call(port):
-            result, error = self._ph.writeTxRx(port, servo_id, Addr.PROFILE_ACCELERATION, 8,
-                                               data)
-            return None, result, error
-
-        _, error = self._txrx(servo_id, call)
+        params = _le(Addr.PROFILE_ACCELERATION, 2) + _le(acceleration, 4) + _le(velocity, 4)
+        _, error = self._exchange(servo_id, INST_WRITE, params)
         self._check(servo_id, error, "a profile write", True)
 
     def set_return_delay(self, ids: Iterable[int], value: int = 0) -> None:
@@ -597,12 +619,7 @@ class ServoBus:
     def reboot(self, servo_id: int, timeout_s: float = 2.0) -> None:
         """REBOOT one servo (clears latched hardware errors whose cause is gone; torque comes
         back off) and wait until it answers again."""
-
-        def call(port):
-            result, error = self._ph.reboot(port, servo_id)
-            return None, result, error
-
-        self._txrx(servo_id, call)
+        self._exchange(servo_id, INST_REBOOT)
         deadline = time.monotonic() + timeout_s
         while self.try_ping(servo_id) is None:
             if time.monotonic() > deadline:

@@ -70,6 +70,10 @@ class SimServoBus:
         Servos ignore packets when the client's pty speed differs from their baud rate.
     positions:
         Initial shaft position (ticks) per ID; 2048 (centre) otherwise.
+    strict_fault_ids:
+        Refuse fault specs naming an ID that is not on this bus. Off by default, so that a rig
+        with several buses can hand the same spec list to each; check the IDs against the
+        whole rig instead.
 
     Attributes
     ----------
@@ -92,6 +96,7 @@ class SimServoBus:
         seed: int = 0,
         strict_baud: bool = False,
         positions: Mapping[int, float] | None = None,
+        strict_fault_ids: bool = False,
     ) -> None:
         id_list = [int(i) for i in ids]
         if not id_list:
@@ -110,7 +115,7 @@ class SimServoBus:
         self.clock = clock if clock is not None else SimClock()
         self.faults = parse_faults(faults)
         unknown = sorted({f.servo_id for f in self.faults if f.servo_id is not None} - set(id_list))
-        if unknown:
+        if unknown and strict_fault_ids:
             raise ConfigError(f"fault specs name servo IDs {unknown} that are not on the bus "
                               f"{sorted(id_list)}")
         self.strict_baud = strict_baud
@@ -284,7 +289,8 @@ def serve_servos_forever(
     previous = {sig: signal.signal(sig, _handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         clock = SimClock(time_scale)
-        with SimServoBus(ids, baud=baud, clock=clock, faults=faults, seed=seed) as bus:
+        with SimServoBus(ids, baud=baud, clock=clock, faults=faults, seed=seed,
+                         strict_fault_ids=True) as bus:
             print(bus.port, flush=True)
             print(
                 f"simulating XM430-W350 servos {sorted(bus.servos)} at {baud} baud on "

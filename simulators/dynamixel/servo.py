@@ -27,6 +27,7 @@ Physics, in short:
 from __future__ import annotations
 
 import math
+import struct
 import threading
 
 from simulators.clock import SimClock
@@ -41,6 +42,12 @@ from simulators.dynamixel.profile import (
 from simulators.dynamixel.protocol import ErrorCode
 
 _POSITION_MODES = (3, 4, 5)
+_PRESENT_BLOCK = struct.Struct("<HBBhhiiiiHB")  # addresses 120..146
+_ITEM_STRUCT = {
+    item.name: (struct.Struct("<" + {1: "b", 2: "h", 4: "i"}[item.size] if item.signed
+                              else "<" + {1: "B", 2: "H", 4: "I"}[item.size]), item.address)
+    for item in ct.ITEMS
+}
 # Equilibrium temperature rise above ambient (°C) per load state.
 _HEAT_HOLDING, _HEAT_MOVING, _HEAT_STALLED = 4.0, 20.0, 45.0
 _VOLTAGE_SAG_V = 0.3
@@ -120,8 +127,8 @@ class SimServo:
 
     # ------------------------------------------------------------------ registers
     def _get(self, name: str) -> int:
-        item = ct.BY_NAME[name]
-        return ct.decode(item, self.mem[item.address : item.address + item.size])
+        fmt, address = _ITEM_STRUCT[name]
+        return fmt.unpack_from(self.mem, address)[0]
 
     def _put(self, name: str, value: int) -> None:
         item = ct.BY_NAME[name]
@@ -469,16 +476,10 @@ class SimServo:
         current = 0
         if self.torque_on:
             current = 900 if self._stall_since is not None else (120 if moving else 15)
-        self._put("realtime_tick", int(self._t * 1000) % 32768)
-        self._put("moving", int(moving))
-        self._put("moving_status", status)
-        self._put("present_pwm", min(current, 885))
-        self._put("present_current", current)
-        self._put("present_velocity", vel_units)
-        self._put("present_position", present)
-        self._put("velocity_trajectory", vel_units)
         target = self._traj.target + offset if self._traj is not None else present
-        self._put("position_trajectory", round(target))
         volts = self._supply - (_VOLTAGE_SAG_V if moving else 0.0)
-        self._put("present_input_voltage", max(0, round(volts * 10)))
-        self._put("present_temperature", max(0, min(255, round(self._temp))))
+        # Realtime Tick (120) .. Present Temperature (146) in one go.
+        _PRESENT_BLOCK.pack_into(
+            self.mem, 120, int(self._t * 1000) % 32768, int(moving), status, min(current, 885),
+            current, vel_units, present, vel_units, round(target),
+            max(0, round(volts * 10)), max(0, min(255, round(self._temp))))

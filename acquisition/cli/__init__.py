@@ -19,6 +19,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.plan",
     "acquisition.cli.demo",
     "acquisition.cli.sim",
+    "acquisition.cli.info",
+    "acquisition.cli.export",
     "acquisition.cli.console",
     "acquisition.cli.inspect",
     "acquisition.cli.calibrate",

@@ -1,0 +1,27 @@
+"""``gonio info``: a session folder's progress, timing, errors and drift, or a table's coverage."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from acquisition.export import table_info
+from acquisition.session import session_status
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("info", help="summarise a session folder or a BRDF table (HDF5 or MERL)")
+    p.add_argument("path", help="session folder, isotropic table (.h5) or MERL file (.binary)")
+    p.add_argument("--no-drift", action="store_true",
+                   help="skip reading the white-reference frames (faster on big sessions)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    path = Path(args.path)
+    if path.is_dir():
+        lines = session_status(path, drift=not args.no_drift).lines()
+    else:
+        lines = table_info(path).lines()
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,270 @@
+"""BRDF tables into the field's formats (MERL binary, CSV, EXR slices) and table summaries.
+
+Inputs are a ``gonio-isotropic-brdf`` HDF5 table (``gonio reduce``) or a MERL ``.binary``
+file. See docs/formats.md for every output layout.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.errors import ConfigError, StorageError
+
+from .halfdiff import MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
+from .merl import MERL_FILE_BYTES, MERL_SCALES, MerlBRDF, read_merl, write_merl
+from .tables import IsotropicTable
+from .tables.atomic import atomic_path
+
+Table = IsotropicTable | MerlBRDF
+
+
+class ExportFormat(StrEnum):
+    """``gonio export --format`` values."""
+
+    MERL = "merl"
+    CSV = "csv"
+    EXR = "exr"
+
+
+DEFAULT_SUFFIX = {ExportFormat.MERL: ".binary", ExportFormat.CSV: ".csv", ExportFormat.EXR: "-exr"}
+
+
+def load_table(path: str | os.PathLike[str]) -> Table:
+    """An isotropic HDF5 table or a MERL file, told apart by content (MERL: exact size)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"table {path} does not exist: give a .h5 table or a MERL .binary file")
+    if path.stat().st_size == MERL_FILE_BYTES:
+        return read_merl(path)
+    return IsotropicTable.load_h5(path)
+
+
+# ------------------------------------------------------------------------------ MERL
+def merl_bin_centres() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (θh, θd, φd) in degrees of every MERL bin, each shaped (90, 90, 180).
+
+    θh is centred in index space (square-root spacing), θd and φd linearly.
+    """
+    _, d, p = merl_bin_edges()
+    k = (np.arange(MERL_SHAPE[0]) + 0.5) / MERL_SHAPE[0]
+    th = 90.0 * k**2
+    td = 0.5 * (d[:-1] + d[1:])
+    pd = 0.5 * (p[:-1] + p[1:])
+    return np.meshgrid(th, td, pd, indexing="ij")  # type: ignore[return-value]
+
+
+def isotropic_to_merl(table: IsotropicTable) -> np.ndarray:
+    """Resample an isotropic table onto the MERL grid, (90, 90, 180, 3) in sr⁻¹, NaN unmeasured.
+
+    Each MERL bin takes the value of the isotropic bin holding its centre (nearest bin, no
+    interpolation); bins whose centre is below the horizon, outside the table or in an empty
+    bin stay unmeasured.
+    """
+    th, td, pd = merl_bin_centres()
+    ti, tr, dp = (a.reshape(-1) for a in angles_from_halfdiff(th, td, pd))
+    below = (ti >= 90.0) | (tr >= 90.0)
+    mean = table.mean.reshape(-1, 3)
+    count = table.count.reshape(-1)
+    out = np.full((ti.size, 3), np.nan)
+    todo = ~below
+    # A MERL bin holds both (wi, wo) and (wo, wi) (reciprocity): take the table's bin for the
+    # centre's own order, else the swapped one.
+    for a, b in ((ti, tr), (tr, ti)):
+        flat = table.flat_index(a, b, dp)
+        ok = todo & (flat >= 0)
+        ok[ok] = count[flat[ok]] > 0
+        out[ok] = mean[flat[ok]]
+        todo &= ~ok
+    return out.reshape(*MERL_SHAPE, 3)
+
+
+def export_merl(table: Table, out: Path) -> int:
+    """Write a MERL binary; returns the number of measured bins."""
+    if isinstance(table, MerlBRDF):
+        write_merl(out, table)  # byte for byte what was read
+        return int(table.measured.sum())
+    values = isotropic_to_merl(table)
+    write_merl(out, values)
+    return int(np.isfinite(values).all(axis=-1).sum())
+
+
+# ------------------------------------------------------------------------------ CSV
+ISO_CSV_HEADER = ("theta_i_deg", "theta_r_deg", "delta_phi_deg", "R_per_sr", "G_per_sr",
+                  "B_per_sr", "var_R", "var_G", "var_B", "count")
+MERL_CSV_HEADER = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "R_per_sr", "G_per_sr", "B_per_sr")
+
+
+def export_csv(table: Table, out: Path) -> int:
+    """One row per measured bin (bin centres in degrees); returns the row count."""
+    if isinstance(table, MerlBRDF):
+        header = MERL_CSV_HEADER
+        th, td, pd = merl_bin_centres()
+        sel = table.measured
+        rows = np.column_stack([th[sel], td[sel], pd[sel], table.values[sel]])
+    else:
+        header = ISO_CSV_HEADER
+        ci, cr, cp = np.meshgrid(*table.centers(), indexing="ij")
+        sel = table.count > 0
+        rows = np.column_stack([ci[sel], cr[sel], cp[sel], table.mean[sel], table.variance[sel],
+                                table.count[sel]])
+    fmt = ["%.10g"] * len(header)
+    if header is ISO_CSV_HEADER:
+        fmt[-1] = "%d"
+    with atomic_path(out, "CSV table") as tmp, open(tmp, "w", newline="") as fh:
+        csv.writer(fh).writerow(header)
+        np.savetxt(fh, rows, fmt=fmt, delimiter=",")
+    return int(rows.shape[0])
+
+
+# ------------------------------------------------------------------------------ EXR
+def _provenance(table: Table) -> dict[str, Any]:
+    if isinstance(table, MerlBRDF):
+        return {"source": str(table.path) if table.path else None, "format": "MERL"}
+    return dict(table.provenance)
+
+
+def export_exr(table: Table, out: Path) -> list[Path]:
+    """One float32 EXR per first-axis bin (θi, or θh for MERL) in the folder ``out``.
+
+    Image rows run over the second axis (θr / θd), columns over the third (Δφ / φd);
+    channels R, G, B (sr⁻¹, NaN unmeasured) and ``count``. Units, bin edges and provenance
+    are EXR attributes (``gonio:*``).
+    """
+    import OpenImageIO as oiio
+
+    if isinstance(table, MerlBRDF):
+        names = ("theta_h", "theta_d", "phi_d")
+        edges = merl_bin_edges()
+        mean = np.where(table.measured[..., None], table.values, np.nan)
+        count = table.measured.astype(np.float32)
+    else:
+        names = ("theta_i", "theta_r", "delta_phi")
+        edges = (table.theta_i_edges, table.theta_r_edges, table.delta_phi_edges)
+        mean = table.mean
+        count = table.count.astype(np.float32)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StorageError(f"cannot create EXR folder {out}: {exc.strerror}; pick another -o") from None
+    prov = json.dumps(_provenance(table))
+    written = []
+    n1, n2 = mean.shape[1], mean.shape[2]
+    for k in range(mean.shape[0]):
+        lo, hi = float(edges[0][k]), float(edges[0][k + 1])
+        path = out / f"{names[0]}_{k:03d}.exr"
+        spec = oiio.ImageSpec(n2, n1, 4, "float")
+        spec.channelnames = ("R", "G", "B", "count")
+        spec.attribute("gonio:units", "1/sr")
+        spec.attribute("gonio:quantity", "brdf")
+        spec.attribute("gonio:slice_axis", names[0])
+        spec.attribute(f"gonio:{names[0]}_deg", 0.5 * (lo + hi))
+        spec.attribute(f"gonio:{names[0]}_range_deg", oiio.TypeDesc("float[2]"), [lo, hi])
+        spec.attribute("gonio:rows_axis", names[1])
+        spec.attribute("gonio:columns_axis", names[2])
+        for name, e in zip(names[1:], edges[1:], strict=True):
+            spec.attribute(f"gonio:{name}_edges_deg", oiio.TypeDesc(f"float[{e.size}]"),
+                           [float(x) for x in e])
+        spec.attribute("gonio:provenance", prov)
+        pixels = np.concatenate([mean[k], count[k][..., None]], axis=-1).astype(np.float32)
+        with atomic_path(path, "EXR slice") as tmp:
+            tmp_exr = tmp.with_suffix(".exr")
+            o = oiio.ImageOutput.create(str(tmp_exr))
+            if o is None or not o.open(str(tmp_exr), spec) or not o.write_image(pixels):
+                raise StorageError(f"cannot write EXR {path}: {oiio.geterror()}")
+            o.close()
+            os.replace(tmp_exr, tmp)
+        written.append(path)
+    return written
+
+
+def export_table(
+    table_path: str | os.PathLike[str], fmt: ExportFormat | str, out: str | os.PathLike[str] | None
+) -> tuple[Path, int]:
+    """Export ``table_path`` as ``fmt`` to ``out`` (default beside the table).
+
+    Returns the output path and the number of measured bins (MERL, CSV) or images (EXR).
+    """
+    try:
+        fmt = ExportFormat(fmt)
+    except ValueError:
+        raise ConfigError(f"unknown export format {fmt!r}: use merl, csv or exr") from None
+    src = Path(table_path)
+    table = load_table(src)
+    dest = Path(out) if out else src.with_name(src.stem + DEFAULT_SUFFIX[fmt])
+    if fmt is ExportFormat.MERL:
+        return dest, export_merl(table, dest)
+    if fmt is ExportFormat.CSV:
+        return dest, export_csv(table, dest)
+    return dest, len(export_exr(table, dest))
+
+
+# ------------------------------------------------------------------------------ info
+@dataclass(frozen=True)
+class TableInfo:
+    """What ``gonio info TABLE`` prints."""
+
+    path: Path
+    format: str
+    shape: tuple[int, ...]
+    axes: dict[str, tuple[float, float]]
+    """Axis name → (first edge, last edge), degrees."""
+    measured_bins: int
+    units: str
+    samples: int | None
+    provenance: dict[str, Any]
+    value_range: tuple[float, float] | None
+    """Min and max measured BRDF over all channels, sr⁻¹."""
+
+    @property
+    def coverage_pct(self) -> float:
+        return 100.0 * self.measured_bins / int(np.prod(self.shape))
+
+    def lines(self) -> list[str]:
+        out = [f"table     {self.path} ({self.format})",
+               "bins      " + " × ".join(str(n) for n in self.shape) + "  ("
+               + ", ".join(f"{k} {a:g}…{b:g}°" for k, (a, b) in self.axes.items()) + ")",
+               f"coverage  {self.measured_bins} measured bins, {self.coverage_pct:.1f} %"]
+        if self.samples is not None:
+            out.append(f"samples   {self.samples}")
+        out.append(f"units     {self.units}")
+        if self.value_range is not None:
+            out.append(f"values    {self.value_range[0]:.4g} … {self.value_range[1]:.4g} sr⁻¹")
+        for k, v in self.provenance.items():
+            out.append(f"{'provenance' if k == next(iter(self.provenance)) else '':9} {k} = {v}")
+        return out
+
+
+def table_info(path: str | os.PathLike[str]) -> TableInfo:
+    """Coverage, units and provenance of an isotropic table or a MERL file."""
+    path = Path(path)
+    table = load_table(path)
+    if isinstance(table, MerlBRDF):
+        meas = table.measured
+        vals = table.values[meas]
+        h, d, p = merl_bin_edges()
+        scales = ", ".join(f"{s:.6g}" for s in MERL_SCALES)
+        return TableInfo(
+            path, "MERL binary", MERL_SHAPE,
+            {"θh": (h[0], h[-1]), "θd": (d[0], d[-1]), "φd": (p[0], p[-1])},
+            int(meas.sum()), f"1/sr (stored value × scale, scales R,G,B = {scales})", None,
+            {"header": list(table.header), "unmeasured": "negative stored values"},
+            (float(vals.min()), float(vals.max())) if vals.size else None,
+        )
+    meas = table.count > 0
+    vals = table.mean[meas]
+    return TableInfo(
+        path, "gonio-isotropic-brdf v1 (HDF5)", table.shape,
+        {"θi": (table.theta_i_edges[0], table.theta_i_edges[-1]),
+         "θr": (table.theta_r_edges[0], table.theta_r_edges[-1]),
+         "Δφ": (table.delta_phi_edges[0], table.delta_phi_edges[-1])},
+        int(meas.sum()), "1/sr", int(table.count.sum()), dict(table.provenance),
+        (float(np.nanmin(vals)), float(np.nanmax(vals))) if vals.size else None,
+    )

@@ -122,3 +122,26 @@ def test_two_percent_light_drift_is_corrected(calibrated: dict[str, Path], monke
     measured = reduction.table.count > 0
     rel = np.abs(reduction.table.mean[measured] / GREY - 1)
     assert np.median(rel) <= 0.003
+
+
+def test_master_dark_removes_the_dark_current_bias(
+    rig_sim_text: str, calibrated: dict[str, Path]
+) -> None:
+    # A warm sensor: 3000 e⁻/s of dark current adds ~15 DN at 10 ms, which the stated black
+    # level misses; a dark-only bundle fixes it (no noise model: no predicted variance).
+    root = calibrated["root"] / "warm"
+    root.mkdir()
+    rig = root / "rig.toml"
+    rig.write_text(rig_sim_text.replace("seed = 7\n", "seed = 7\ndark_current_e_per_s = 3000.0\n", 1))
+    assert main(["calibrate", "dark", "--rig", str(rig), "--out", str(root / "bundle")]) == 0
+    api.capture(rig, calibrated["plan"], root / "s", material="lambert:albedo=0.18", seed=2)
+    plain = reduce_session(root / "s")
+    fixed = reduce_session(root / "s", bundle=root / "bundle")
+    assert plain.bundle is None and fixed.predicted_variance is None
+    measured = fixed.table.count > 0
+
+    def median_error(reduction) -> float:
+        return float(np.median(np.abs(reduction.table.mean[measured] / GREY - 1)))
+
+    assert median_error(plain) > 0.01
+    assert median_error(fixed) <= 0.003

@@ -278,6 +278,20 @@ def test_return_delay_time_delays_the_reply(sim, port):
     assert median_ping_s(2) - median_ping_s(1) > 0.0003
 
 
+def test_wire_time_models_the_baud_rate(clock):
+    with SimServoBus([1], clock=clock, wire_time=True) as sim:
+        port = open_port(sim.port)
+        PH.write1ByteTxRx(port, 1, 9, 0)
+        times = []
+        for _ in range(9):
+            t0 = time.perf_counter()
+            assert PH.ping(port, 1)[1] == COMM_SUCCESS
+            times.append(time.perf_counter() - t0)
+        # 10-byte PING + 14-byte status at 10 bits per byte and 57600 baud ≈ 4.2 ms.
+        assert statistics.median(times) > 24 * 10 / 57600
+        port.closePort()
+
+
 def test_strict_baud_models_a_mismatch(clock):
     with SimServoBus([1], clock=clock, strict_baud=True) as sim:
         port = open_port(sim.port, 115200)

@@ -176,6 +176,12 @@ def test_port_left_busy_by_an_interrupted_transfer_recovers(bus):
     assert bus.read_positions([1]) == {1: 2048}
 
 
+def test_a_dead_port_handle_is_reopened(bus):
+    bus._port.ser.close()  # e.g. the adapter was unplugged and plugged back in
+    assert bus.read_positions([1, 2]) == {1: 2048, 2: 2048}
+    assert bus.stats["retries"] >= 1
+
+
 def test_retries_hide_dropped_and_corrupt_replies(clock):
     """1,000 consecutive sync reads of 3 servos with 5 % drops and 5 % corrupt replies."""
     positions = {1: 1000, 2: 2048, 3: 3100}

@@ -70,6 +70,9 @@ class SimServoBus:
         Servos ignore packets when the client's pty speed differs from their baud rate.
     positions:
         Initial shaft position (ticks) per ID; 2048 (centre) otherwise.
+    wire_time:
+        Also delay each reply by the time the instruction and the reply take on a real wire at
+        the servo's baud rate (10 bits per byte), as on a real bus; off by default (fast tests).
     strict_fault_ids:
         Refuse fault specs naming an ID that is not on this bus. Off by default, so that a rig
         with several buses can hand the same spec list to each; check the IDs against the
@@ -96,6 +99,7 @@ class SimServoBus:
         seed: int = 0,
         strict_baud: bool = False,
         positions: Mapping[int, float] | None = None,
+        wire_time: bool = False,
         strict_fault_ids: bool = False,
     ) -> None:
         id_list = [int(i) for i in ids]
@@ -119,6 +123,7 @@ class SimServoBus:
             raise ConfigError(f"fault specs name servo IDs {unknown} that are not on the bus "
                               f"{sorted(id_list)}")
         self.strict_baud = strict_baud
+        self.wire_time = wire_time
         self._lock = threading.RLock()
         self._rng = random.Random(seed)
         positions = positions or {}
@@ -241,11 +246,15 @@ class SimServoBus:
                 self._client_baud = self._read_client_baud()
             replies = self._responder.handle(pkt)
             due = now
+            if self.wire_time and replies:
+                due += (10 + len(pkt.params)) * 10 / replies[0][0].baud_rate
             for servo, raw in replies:
                 wf = self._wire[servo]
                 drop = self._rng.random() < wf.drop
                 corrupt = self._rng.random() < wf.corrupt
                 due += servo.return_delay_s + wf.delay_s
+                if self.wire_time:
+                    due += len(raw) * 10 / servo.baud_rate
                 if drop:
                     self.stats["dropped"] += 1
                     continue

@@ -214,9 +214,9 @@ class HealthGuard:
             if waited >= give_up:
                 self.pauses.append(HealthPause(start, start + waited, first))
                 raise ServoHealthError(
-                    f"paused {waited:.0f} s and still {'; '.join(reasons)}; the capture is "
-                    f"stopped, all axes hold their position — cool the servos or fix the "
-                    f"supply, then `gonio resume` the session"
+                    f"paused {waited:.0f} s and still {'; '.join(reasons)}; nothing moved, "
+                    f"all axes hold their position — cool the servos or fix the supply, then "
+                    f"continue (a capture with `gonio resume SESSION`)"
                 )
 
 

@@ -33,6 +33,7 @@ from calibration.raw import load_raw
 from drivers.errors import SessionError
 
 from .journal import StepRecord
+from .kinematics import Pose
 from .session import REFERENCE, SessionFolder
 from .tables import IsotropicTable
 
@@ -64,6 +65,16 @@ class Reduction:
     when a calibration bundle with a noise model was used; else None."""
     bundle: Path | None = None
     """The calibration bundle applied, if any."""
+
+
+def binning_pose(rec: StepRecord) -> Pose:
+    """The bin a step's sample goes to: its commanded pose.
+
+    The read-back geometry (used for the value's cos θi) lies within the motion tolerance of
+    the command; binning by the command keeps poses whose azimuth is degenerate (θ ≈ 0) in
+    one deterministic bin, so a resumed session bins exactly like an uninterrupted one.
+    """
+    return Pose(rec.theta_i, rec.theta_r, rec.delta_phi)
 
 
 def frame_signal(
@@ -200,8 +211,8 @@ def reduce_session(
     poses = [r for r in records if r.kind != REFERENCE]
     for k, rec in enumerate(poses):
         fs = signal(rec)
-        pose = kin.forward(rec.joints_read or rec.joints_cmd)
-        cos_i = np.cos(np.radians(pose.theta_i))
+        cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
+        pose = binning_pose(rec)
         if fs.n_valid == 0 or cos_i <= 0:
             continue
         ref = ref_at(when[rec.step])

@@ -13,6 +13,7 @@ import numpy as np
 
 from simulators.materials import Material, material_from_spec
 
+from .reduce import binning_pose
 from .session import REFERENCE, SessionFolder
 from .tables import IsotropicTable
 
@@ -32,7 +33,7 @@ def truth_table(session_dir: str | Path, material: Material | None = None) -> Is
             if rec.status != "done" or rec.kind == REFERENCE:
                 continue
             g = kin.forward_geometry(rec.joints_read or rec.joints_cmd)
-            pose = kin.forward(rec.joints_read or rec.joints_cmd)
+            pose = binning_pose(rec)
             value = material.eval_vectors(g.light_dir, g.camera_dir)
             table.add(np.array([pose.theta_i]), np.array([pose.theta_r]),
                       np.array([pose.delta_phi]), value[None, :])

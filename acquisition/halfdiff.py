@@ -250,20 +250,25 @@ def _unclamped_indices(
 
     Outside θh, θd ∈ [0, quarter turn] → −1 in all three; NaN in any → −2 in all three.
     φd is folded like the reference inside (−half, half] (so φd = half turn stays there and
-    is clamped into the last bin) and by whole half turns elsewhere.
+    is clamped into the last bin) and by whole half turns elsewhere. In degrees the bins are
+    computed as in the fast path of :func:`flat_index_unclamped_into` (√(θh·90), ⌊θd⌋, ⌊φd′⌋),
+    so a sample's bin does not depend on which path its chunk took.
     """
     quarter = half_turn / 2.0
     with np.errstate(invalid="ignore"):
         inside = (pd > -half_turn) & (pd <= half_turn)
         pd = np.where(inside, np.where(pd < 0.0, pd + half_turn, pd), np.mod(pd, half_turn))
-        h = np.sqrt(np.maximum(th, 0.0) / quarter * THETA_H_BINS * THETA_H_BINS)
+        if _one_bin_per_degree(half_turn):
+            h = np.sqrt(np.maximum(th, 0.0) * float(THETA_H_BINS))
+            d = td
+            p = pd
+        else:
+            h = np.sqrt(np.maximum(th, 0.0) / quarter * THETA_H_BINS * THETA_H_BINS)
+            d = td / quarter * THETA_D_BINS
+            p = pd / half_turn * PHI_D_BINS
         ih = np.minimum(h.astype(np.int64, casting="unsafe"), THETA_H_BINS - 1)
-        idd = np.minimum(
-            (td / quarter * THETA_D_BINS).astype(np.int64, casting="unsafe"), THETA_D_BINS - 1
-        )
-        ip = np.minimum(
-            (pd / half_turn * PHI_D_BINS).astype(np.int64, casting="unsafe"), PHI_D_BINS - 1
-        )
+        idd = np.minimum(d.astype(np.int64, casting="unsafe"), THETA_D_BINS - 1)
+        ip = np.minimum(p.astype(np.int64, casting="unsafe"), PHI_D_BINS - 1)
         nan = np.isnan(th) | np.isnan(td) | np.isnan(pd)
         bad = ~((th >= 0.0) & (th <= quarter) & (td >= 0.0) & (td <= quarter)) | nan
     if np.any(bad):
@@ -272,6 +277,11 @@ def _unclamped_indices(
         idd = np.where(bad, code, idd)
         ip = np.where(bad, code, ip)
     return ih, idd, ip
+
+
+def _one_bin_per_degree(half_turn: float) -> bool:
+    """Angles in degrees on the 90 × 90 × 180 grid: θd and φd bins are whole degrees."""
+    return half_turn == 180.0 and MERL_SHAPE == (90, 90, 180)
 
 
 def _trunc_clamped(x: np.ndarray, n: int) -> np.ndarray:
@@ -328,7 +338,7 @@ def flat_index_unclamped_into(
     checks are reductions over the chunk; only a chunk that fails them takes the general path.
     """
     quarter = half_turn / 2.0
-    degrees = half_turn == 180.0 and (THETA_H_BINS, THETA_D_BINS, PHI_D_BINS) == (90, 90, 180)
+    degrees = _one_bin_per_degree(half_turn)
     size = min(_INDEX_CHUNK, th.size)
     buf_h, buf_d, buf_p = np.empty(size), np.empty(size), np.empty(size)
     buf_m = np.empty(size, dtype=bool)

@@ -8,9 +8,12 @@ the batch order or split, and two accumulators merge by adding their arrays.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from acquisition.tables.backend import kernels, resolve_backend
 from drivers.errors import ConfigError
 
 DROP_OUT_OF_RANGE = -1
@@ -28,6 +31,9 @@ class BinAccumulator:
         Bin grid shape, e.g. ``(90, 90, 180)``.
     channels
         Values per sample (3 for RGB).
+    backend
+        ``"numba"`` (compiled kernel) or ``"numpy"``; default from ``$GONIO_BINNING_BACKEND``,
+        else numba (see :mod:`acquisition.tables.backend`).
 
     Notes
     -----
@@ -36,7 +42,10 @@ class BinAccumulator:
     value is not finite (NaN or ±inf in any channel) are dropped as NaN.
     """
 
-    def __init__(self, shape: tuple[int, ...], channels: int = 3) -> None:
+    def __init__(
+        self, shape: tuple[int, ...], channels: int = 3, *, backend: str | None = None
+    ) -> None:
+        self.backend = resolve_backend(backend)
         self.shape = tuple(int(s) for s in shape)
         self.channels = int(channels)
         self.n_bins = math.prod(self.shape)
@@ -66,6 +75,10 @@ class BinAccumulator:
         vals = np.asarray(values, dtype=np.float64).reshape(idx.size, self.channels)
         if idx.size == 0:
             return 0
+        if self.backend == "numba":
+            return self.add_with(
+                kernels().accumulate_flat, np.ascontiguousarray(idx, dtype=np.int64), vals
+            )
         if idx.dtype != np.intp:
             idx = idx.astype(np.intp)
         # Fast path: reductions only (no per-sample temporaries) when every sample is good.
@@ -83,6 +96,19 @@ class BinAccumulator:
         self.n_dropped_range += int(np.count_nonzero(~nan & ~in_table))
         self._accumulate(idx[keep], vals[keep])
         return int(np.count_nonzero(keep))
+
+    def add_with(self, kernel: Callable[..., tuple[int, int, int]], *args: Any) -> int:
+        """Run a compiled binning ``kernel(*args, count, sums, sumsq)`` on this accumulator's
+        arrays and record its drops; returns the number of samples kept.
+
+        ``args`` are the kernel's inputs (per-sample arrays, the (N, channels) values, table
+        parameters); arrays are made C-contiguous so each kernel compiles once.
+        """
+        arrays = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a for a in args]
+        kept, n_nan, n_range = kernel(*arrays, self._count, self._sum, self._sumsq)
+        self.n_dropped_nan += int(n_nan)
+        self.n_dropped_range += int(n_range)
+        return int(kept)
 
     def _accumulate(self, idx: np.ndarray, vals: np.ndarray) -> None:
         """Add in-range, finite samples (no checks).
@@ -118,8 +144,8 @@ class BinAccumulator:
         self.n_dropped_range += other.n_dropped_range
 
     def copy(self) -> BinAccumulator:
-        """Independent copy."""
-        new = BinAccumulator(self.shape, self.channels)
+        """Independent copy (same backend)."""
+        new = BinAccumulator(self.shape, self.channels, backend=self.backend)
         new.merge_from(self)
         return new
 
@@ -161,14 +187,19 @@ class BinAccumulator:
 
     @classmethod
     def from_statistics(
-        cls, count: np.ndarray, mean: np.ndarray, variance: np.ndarray
+        cls,
+        count: np.ndarray,
+        mean: np.ndarray,
+        variance: np.ndarray,
+        *,
+        backend: str | None = None,
     ) -> BinAccumulator:
         """Rebuild running sums from stored count, mean and variance (inverse of the above).
 
         Bins with count 0 get zero sums; bins with count 1 (variance NaN) get Σx² = x².
         """
         count = np.asarray(count, dtype=np.int64)
-        acc = cls(count.shape, np.shape(mean)[-1])
+        acc = cls(count.shape, np.shape(mean)[-1], backend=backend)
         n = count.reshape(-1).astype(np.float64)
         m = np.moveaxis(np.asarray(mean, dtype=np.float64).reshape(-1, acc.channels), 0, -1)
         v = np.moveaxis(np.asarray(variance, dtype=np.float64).reshape(-1, acc.channels), 0, -1)

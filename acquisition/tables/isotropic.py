@@ -34,6 +34,7 @@ import numpy as np
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
 from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
 from acquisition.tables.atomic import atomic_path
+from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
 
 FORMAT = "gonio-isotropic-brdf"
@@ -73,6 +74,9 @@ class IsotropicTable:
         [−5, 185]); otherwise Δφ is wrapped into [edges[0], edges[0] + 360).
     provenance
         Free metadata (JSON-serialisable) saved with the table.
+    backend
+        ``"numba"`` (fused compiled index + accumulation) or ``"numpy"``; default from
+        ``$GONIO_BINNING_BACKEND``, else numba. Both give the same bins.
     """
 
     def __init__(
@@ -83,6 +87,7 @@ class IsotropicTable:
         *,
         fold_delta_phi: bool | None = None,
         provenance: Mapping[str, Any] | None = None,
+        backend: str | None = None,
     ) -> None:
         self.theta_i_edges = _check_edges("theta_i_edges", theta_i_edges)
         self.theta_r_edges = _check_edges("theta_r_edges", theta_r_edges)
@@ -90,8 +95,13 @@ class IsotropicTable:
         span = self.delta_phi_edges[-1] - self.delta_phi_edges[0]
         self.fold_delta_phi = bool(span <= 270.0) if fold_delta_phi is None else fold_delta_phi
         self.provenance: dict[str, Any] = dict(provenance or {})
-        self._acc = BinAccumulator(self.shape, 3)
+        self._acc = BinAccumulator(self.shape, 3, backend=backend)
         self._stored: tuple[np.ndarray, np.ndarray] | None = None  # (mean, variance) as loaded
+
+    @property
+    def backend(self) -> str:
+        """Binning implementation in use, ``"numba"`` or ``"numpy"``."""
+        return self._acc.backend
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -130,7 +140,8 @@ class IsotropicTable:
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)
         ir = axis_index(tr, self.theta_r_edges)
-        ip = axis_index(self.normalise_delta_phi(dp), self.delta_phi_edges)
+        with np.errstate(invalid="ignore"):  # ±inf Δφ normalises to NaN: out of range
+            ip = axis_index(self.normalise_delta_phi(dp), self.delta_phi_edges)
         _, nr, nphi = self.shape
         flat = (ii * nr + ir) * nphi + ip
         flat[(ii < 0) | (ir < 0) | (ip < 0)] = DROP_OUT_OF_RANGE
@@ -151,6 +162,8 @@ class IsotropicTable:
         (:attr:`n_dropped_range`, :attr:`n_dropped_nan`). Returns the number kept.
         """
         rgb = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
+        if self.backend == "numba":
+            return self._add_compiled(theta_i_deg, theta_r_deg, delta_phi_deg, rgb)
         flat = self.flat_index(theta_i_deg, theta_r_deg, delta_phi_deg)
         if flat.size != rgb.shape[0]:
             if flat.size == 1:
@@ -159,6 +172,34 @@ class IsotropicTable:
                 raise ValueError(f"{flat.size} angle samples but {rgb.shape[0]} RGB samples")
         self._stored = None
         return self._acc.add_flat(flat, rgb)
+
+    def _add_compiled(
+        self,
+        theta_i_deg: np.ndarray | float,
+        theta_r_deg: np.ndarray | float,
+        delta_phi_deg: np.ndarray | float,
+        rgb: np.ndarray,
+    ) -> int:
+        ti, tr, dp = np.broadcast_arrays(
+            *(np.asarray(a, dtype=np.float64) for a in (theta_i_deg, theta_r_deg, delta_phi_deg))
+        )
+        n = rgb.shape[0]
+        if ti.size == 1 and n != 1:
+            ti, tr, dp = (np.broadcast_to(a.reshape(1), (n,)) for a in (ti, tr, dp))
+        elif ti.size != n:
+            raise ValueError(f"{ti.size} angle samples but {n} RGB samples")
+        self._stored = None
+        return self._acc.add_with(
+            kernels().iso_add,
+            ti.reshape(-1),
+            tr.reshape(-1),
+            dp.reshape(-1),
+            rgb,
+            self.theta_i_edges,
+            self.theta_r_edges,
+            self.delta_phi_edges,
+            bool(self.fold_delta_phi),
+        )
 
     def merge(self, other: IsotropicTable) -> IsotropicTable:
         """New table holding the samples of both (edges must be equal)."""
@@ -328,7 +369,9 @@ class IsotropicTable:
                 )
         mean = np.asarray(data["mean"], dtype=np.float64)
         variance = np.asarray(data["variance"], dtype=np.float64)
-        table._acc = BinAccumulator.from_statistics(data["count"], mean, variance)
+        table._acc = BinAccumulator.from_statistics(
+            data["count"], mean, variance, backend=table.backend
+        )
         table._stored = (mean, variance)
         return table
 
@@ -340,6 +383,7 @@ class IsotropicTable:
             self.delta_phi_edges,
             fold_delta_phi=self.fold_delta_phi,
             provenance=self.provenance,
+            backend=self.backend,
         )
 
     def _check_same_edges(self, other: IsotropicTable) -> None:

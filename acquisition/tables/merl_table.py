@@ -19,6 +19,7 @@ from acquisition.halfdiff import (
     merl_bin_edges,
 )
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
+from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
 
 CHUNK = 1 << 16
@@ -40,13 +41,24 @@ class MerlTable:
     ----------
     provenance
         Free metadata kept with the table (exported by the callers that write files).
+    backend
+        ``"numba"`` (fused compiled index + accumulation) or ``"numpy"``; default from
+        ``$GONIO_BINNING_BACKEND``, else numba. Both give the same bins (the numba kernels
+        repeat the numpy arithmetic operation for operation).
     """
 
     shape = MERL_SHAPE
 
-    def __init__(self, provenance: Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self, provenance: Mapping[str, Any] | None = None, *, backend: str | None = None
+    ) -> None:
         self.provenance: dict[str, Any] = dict(provenance or {})
-        self._acc = BinAccumulator(MERL_SHAPE, 3)
+        self._acc = BinAccumulator(MERL_SHAPE, 3, backend=backend)
+
+    @property
+    def backend(self) -> str:
+        """Binning implementation in use, ``"numba"`` or ``"numpy"``."""
+        return self._acc.backend
 
     # ------------------------------------------------------------------ accumulation
     def add_vectors(self, wi: np.ndarray, wo: np.ndarray, rgb: np.ndarray) -> int:
@@ -57,6 +69,8 @@ class MerlTable:
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
         wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
         rgb = _as_rgb(rgb, wi.shape[0])
+        if self.backend == "numba":
+            return self._acc.add_with(kernels().merl_add_vectors, wi, wo, rgb)
         n = wi.shape[0]
         idx = np.empty(min(CHUNK, n), dtype=np.int64)
         kept = 0
@@ -92,6 +106,8 @@ class MerlTable:
             for x in np.broadcast_arrays(theta_i_deg, theta_r_deg, delta_phi_deg)
         )
         rgb = _as_rgb(rgb, ti.size)
+        if self.backend == "numba":
+            return self._acc.add_with(kernels().merl_add_angles, ti, tr, dp, rgb)
         idx = np.empty(min(CHUNK, ti.size), dtype=np.int64)
         kept = 0
         for a in range(0, ti.size, CHUNK):
@@ -123,6 +139,8 @@ class MerlTable:
             for x in np.broadcast_arrays(theta_h_deg, theta_d_deg, phi_d_deg)
         )
         rgb = _as_rgb(rgb, th.size)
+        if self.backend == "numba":
+            return self._acc.add_with(kernels().merl_add_halfdiff_deg, th, td, pd, rgb)
         idx = np.empty(min(CHUNK, th.size), dtype=np.int64)
         kept = 0
         for a in range(0, th.size, CHUNK):
@@ -140,7 +158,7 @@ class MerlTable:
         """New table holding the samples of both."""
         if not isinstance(other, MerlTable):
             raise ConfigError("a MERL table merges only with another MERL table")
-        new = MerlTable(self.provenance)
+        new = MerlTable(self.provenance, backend=self.backend)
         new._acc.merge_from(self._acc)
         new._acc.merge_from(other._acc)
         return new
@@ -154,7 +172,7 @@ class MerlTable:
         Reciprocity itself is already folded by the grid (φd and φd + 180° share a bin);
         mirroring the pair about the plane of the normal and h maps φd to −φd ≡ 180° − φd.
         """
-        new = MerlTable(self.provenance)
+        new = MerlTable(self.provenance, backend=self.backend)
         mirror = np.arange(PHI_D_BINS)[::-1]
         a = self._acc
         new._acc._count[:] = (

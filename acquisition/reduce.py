@@ -155,6 +155,10 @@ def reduce_session(
     folder = SessionFolder(session_dir)
     cal = find_bundle(folder, bundle)
     rig, plan = folder.rig(), folder.plan()
+    if rig.sample.image_based:
+        from .reduce_image import reduce_image_session  # imports reduce: load lazily
+
+        return reduce_image_session(folder.path, progress)
     kin = rig.kinematics()
     with folder.journal() as journal:
         records = [r for r in journal.steps() if r.status == "done"]

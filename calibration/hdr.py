@@ -208,9 +208,13 @@ def bracket(
     def take(exposure: float) -> LinearImage:
         path = Path(capture_fn(exposure))
         frame = load_raw(path)
-        dark = dark_for(exposure, frame.iso) if dark_for is not None and frame.iso else None
+        used = frame.exposure_s or exposure
+        dark = dark_for(used, frame.iso) if dark_for is not None and frame.iso else None
+        # The file's exposure is what the camera really used (a real body rounds to its
+        # nearest shutter speed); the requested one only where the file has none.
         image = linearize(frame, dark=dark, flat=flat, noise=noise,
-                          saturation=policy.saturation, exposure_s=exposure)
+                          saturation=policy.saturation,
+                          exposure_s=None if frame.exposure_s else exposure)
         exposures.append(exposure)
         paths.append(path)
         images.append(image)

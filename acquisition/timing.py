@@ -135,18 +135,61 @@ class ArrayTimeModel:
         self.axes = np.array([i for i, n in enumerate(joint_names) if n in model.profiles], dtype=int)
         self.velocity = np.array([model.profiles[joint_names[i]].velocity_deg_s for i in self.axes])
         self.accel = np.array([model.profiles[joint_names[i]].accel_deg_s2 for i in self.axes])
+        self._reach_v = self.velocity**2 / self.accel  # distance at which v is reached
+        self._four_over_a = 4.0 / self.accel
+        self._inv_v = 1.0 / self.velocity
 
     def axis_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Per-axis durations (…, A) of the moves a → b, seconds."""
         d = b[..., self.axes] - a[..., self.axes]
         return trapezoid_time_array(d, self.velocity, self.accel)
 
+    def reach_deg(self, t_s: np.ndarray) -> np.ndarray:
+        """Farthest travel (…, J) in degrees each joint can make in ``t_s`` seconds (…);
+        infinite for joints that take no time."""
+        t = np.asarray(t_s, dtype=float)[..., None]
+        out = np.full(t.shape[:-1] + (len(self.joint_names),), np.inf)
+        v, a = self.velocity, self.accel
+        out[..., self.axes] = np.where(t >= 2 * v / a, v * (t - v / a), a * t * t / 4.0)
+        return out
+
     def move_s(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Durations (…) of the moves a → b (broadcast), seconds; NaN where a joint is NaN."""
-        if len(self.axes) == 0:
-            shape = np.broadcast_shapes(a.shape, b.shape)[:-1]
-            return np.zeros(shape)
-        return self.axis_times(a, b).max(axis=-1)
+        """Durations (…) of the moves a → b (broadcast), seconds; NaN where a joint is NaN.
+
+        Per axis the trapezoid is written without branches: with c = v²/a the distance at
+        which the profile reaches v, t = 2·√(min(d, c)/a) + max(d − c, 0)/v.
+        """
+        if a.size + b.size < 50_000:  # small: one expression over the axis dimension
+            if len(self.axes) == 0:
+                return np.zeros(np.broadcast_shapes(a.shape, b.shape)[:-1])
+            d = np.abs(b[..., self.axes] - a[..., self.axes])
+            t = np.sqrt(np.minimum(d, self._reach_v) * self._four_over_a)
+            t += np.maximum(d - self._reach_v, 0.0) * self._inv_v
+            return t.max(axis=-1)
+        shape = np.broadcast_shapes(a.shape, b.shape)[:-1]
+        dtype = np.result_type(a.dtype, b.dtype, np.float32)
+        out = np.zeros(shape, dtype)
+        work = np.empty(shape, dtype)
+        tmp = np.empty(shape, dtype)
+        for k, j in enumerate(self.axes):  # one axis at a time: no reduction over a short axis
+            v, acc = self.velocity[k], self.accel[k]
+            c = v * v / acc
+            np.subtract(b[..., j], a[..., j], out=work)
+            np.abs(work, out=work)
+            np.minimum(work, c, out=tmp)
+            tmp *= 4.0 / acc
+            np.sqrt(tmp, out=tmp)
+            work -= c
+            np.maximum(work, 0.0, out=work)
+            work *= 1.0 / v
+            work += tmp
+            np.fmax(out, work, out=out)
+        if len(self.axes):
+            nan_a = np.isnan(a[..., self.axes]).any(-1)
+            nan_b = np.isnan(b[..., self.axes]).any(-1)
+            if nan_a.any() or nan_b.any():
+                out = np.where(nan_a | nan_b, np.nan, out)
+        return out
 
     def positions(self, a: np.ndarray, b: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """Joints (…, J) at ``t_s`` seconds into the moves a → b (all axes start together)."""

@@ -1,55 +1,151 @@
-"""Planner: each rejection reason with a pose that triggers it and one just inside; timing."""
+"""Planner: each rejection reason with a pose that triggers it and one just inside; the guard;
+sweeps (order, naive order, lower bound, ETA parts); swept-path collisions."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from acquisition.kinematics import Pose
 from acquisition.plan import load_plan
-from acquisition.planner import Planner, Reason, Rejection, serpentine
-from acquisition.rig import load_rig
+from acquisition.planner import Planner, Reason, Rejection, segment_distance, serpentine
+from acquisition.rig import FootprintConfig, RigConfig, load_rig
 from acquisition.timing import trapezoid_time_s
 from drivers.errors import CollisionError, LimitError
 
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
 
 @pytest.fixture
-def planner(rig_sim_path: Path) -> Planner:
-    return Planner(load_rig(rig_sim_path))
+def rig(rig_sim_path: Path) -> RigConfig:
+    return load_rig(rig_sim_path)
+
+
+@pytest.fixture
+def planner(rig: RigConfig) -> Planner:
+    return Planner(rig)
 
 
 def reason(result: object) -> Reason | None:
     return result.reason if isinstance(result, Rejection) else None
 
 
-def test_shadow_cone_rejects_inside_and_accepts_just_outside(planner: Planner) -> None:
-    # Camera and light on the same side (Δφ = 0) separated by |θi − θr|.
-    assert reason(planner.check_pose(Pose(40, 47, 0))) is Reason.SHADOW
-    assert reason(planner.check_pose(Pose(40, 48.01, 0))) is None
+def collision_angle_deg(rig: RigConfig) -> float:
+    """Separation below which the sim rig's arm capsules touch: the camera capsule's inner
+    end (a point) against the light capsule (it projects inside the light segment)."""
+    arms = rig.arms
+    assert arms is not None
+    reach = arms.light.radius_m + arms.camera.radius_m + arms.clearance_m
+    return math.degrees(math.asin(reach / arms.camera.from_m))
 
+
+# -- one test per reason: triggered, and just inside -------------------------------------
 
 def test_max_elevation(planner: Planner) -> None:
     assert reason(planner.check_pose(Pose(85.01, 30, 90))) is Reason.MAX_ELEVATION
     assert reason(planner.check_pose(Pose(85.0, 30, 90))) is None
 
 
-def test_joint_limits(rig_sim_path: Path) -> None:
-    planner = Planner(load_rig(rig_sim_path), max_elevation_deg=90)
+def test_duplicate_same_measurement_listed_twice(planner: Planner) -> None:
+    start = planner.reference_joints()
+    sweep = planner.plan([Pose(30, 30, 90), Pose(30, 30, 90), Pose(30, 30, -90),
+                          Pose(30, 30, 90.001), Pose(0, 40, 0), Pose(0, 40, 120)], start)
+    # ±Δφ is one bin of a folded table; Δφ means nothing when the light is at the normal.
+    assert sweep.rejected_counts() == {"duplicate": 3}
+    assert len(sweep.steps) == 3
+    # With a table that keeps the sign of Δφ, −90° is a different measurement (and the
+    # reciprocal of (θi, θr, Δφ) is (θr, θi, −Δφ)).
+    signed = Planner(planner.rig, mirror_delta_phi=False)
+    assert signed.plan([Pose(20, 40, 90), Pose(20, 40, -90)], start).rejected_counts() == {}
+    assert signed.plan([Pose(20, 40, 90), Pose(40, 20, -90)], start).rejected_counts() == {
+        "reciprocal": 1}
+
+
+def test_unreachable_on_a_light_stage(tmp_path: Path) -> None:
+    rig_file = tmp_path / "stage.toml"
+    rig_file.write_text(
+        'format_version = 1\nkinematics = "light-stage"\n'
+        '[geometry]\nlight_distance_m = 1.0\ncamera_distance_m = 1.0\n'
+        '[camera]\nroi = [0, 0, 4, 4]\n'
+        '[light_stage]\ncamera_angles_deg = [0, 0]\n'
+        'light_angles_deg = [[20, 0], [40, 90], [60, 200]]\n'
+    )
+    planner = Planner(load_rig(rig_file))
+    assert reason(planner.check_pose(Pose(40, 0, 0))) is None
+    assert planner.joints_for(Pose(40, 0, 0)) == {"light": 1.0}
+    assert reason(planner.check_pose(Pose(40.01, 0, 0))) is Reason.UNREACHABLE
+    sweep = planner.plan([Pose(20, 0, 0), Pose(60, 0, 0), Pose(40, 0, 0)], {"light": 0.0})
+    assert sweep.motion_s == 0 and sweep.lower_bound_motion_s == 0  # switching, no travel
+    assert [s.joints["light"] for s in sweep.steps] and sweep.estimated_s > 0
+
+
+def test_joint_limits(rig: RigConfig) -> None:
+    planner = Planner(dataclasses.replace(rig, footprint=None), max_elevation_deg=90)
     assert reason(planner.check_pose(Pose(20, 87.5, 90))) is Reason.JOINT_LIMITS
     assert reason(planner.check_pose(Pose(20, 86.9, 90))) is None
 
 
-def test_duplicates_are_reported(planner: Planner) -> None:
-    start = planner.joints_for(Pose(0, 45, 180))
-    sweep = planner.plan([Pose(30, 30, 90), Pose(30, 30, 90)], start)
-    assert len(sweep.steps) == 1
-    assert sweep.rejected_counts() == {"duplicate": 1}
+def test_arm_collision(rig: RigConfig) -> None:
+    planner = Planner(rig, shadow_cone_deg=0)
+    gamma = collision_angle_deg(rig)
+    # Camera and light on the same side (Δφ = 0) are |θi − θr| apart.
+    inside = planner.check_pose(Pose(40, 40 + gamma - 0.01, 0))
+    assert reason(inside) is Reason.ARM_COLLISION
+    assert "clearance" in inside.detail
+    assert reason(planner.check_pose(Pose(40, 40 + gamma + 0.01, 0))) is None
 
+
+def test_shadow_cone(planner: Planner, rig: RigConfig) -> None:
+    assert collision_angle_deg(rig) < 7  # so the arms do not collide first
+    assert reason(planner.check_pose(Pose(40, 47, 0))) is Reason.SHADOW
+    assert reason(planner.check_pose(Pose(40, 48.01, 0))) is None
+
+
+def test_footprint(rig: RigConfig) -> None:
+    # 10 mm spot on a 50 mm sample: stretched by 1/cos θi it leaves the sample past 78.46°.
+    fp = FootprintConfig(sample_size_m=0.05, spot_diameter_m=0.01, view_diameter_m=0.005)
+    planner = Planner(dataclasses.replace(rig, footprint=fp))
+    limit = math.degrees(math.acos(0.01 / 0.05))
+    over = planner.check_pose(Pose(limit + 0.01, 30, 90))
+    assert reason(over) is Reason.FOOTPRINT and "light spot" in over.detail
+    assert reason(planner.check_pose(Pose(limit - 0.01, 30, 90))) is None
+    view_limit = math.degrees(math.acos(0.005 / 0.05))  # 84.26°: the camera's region
+    assert "measured region" in planner.check_pose(Pose(30, view_limit + 0.01, 90)).detail
+    assert reason(planner.check_pose(Pose(30, view_limit - 0.01, 90))) is None
+
+
+def test_reciprocal_measured_once_unless_both(planner: Planner, rig: RigConfig) -> None:
+    start = planner.reference_joints()
+    poses = [Pose(20, 40, 90), Pose(40, 20, 90), Pose(40, 20.001, 90), Pose(30, 30, 90)]
+    sweep = planner.plan(poses, start)
+    assert sweep.rejected_counts() == {"reciprocal": 1}
+    assert sweep.rejected[0].pose == Pose(40, 20, 90)  # the later one of the pair
+    both = Planner(rig, reciprocal="both").plan(poses, start)
+    assert both.rejected_counts() == {} and len(both.steps) == 4
+
+
+def test_reciprocal_keeps_the_reachable_one(rig: RigConfig) -> None:
+    # The camera arc stops at 87°, the light arm too; with a 60° light limit only one of a
+    # pair is reachable, and that one is kept even though it comes second.
+    axes = dict(rig.axes)
+    axes["light_theta"] = dataclasses.replace(axes["light_theta"], min_deg=-60, max_deg=60)
+    planner = Planner(dataclasses.replace(rig, axes=axes))
+    sweep = planner.plan([Pose(70, 30, 90), Pose(30, 70, 90)], planner.reference_joints())
+    assert sweep.rejected_counts() == {"joint-limits": 1}
+    assert sweep.steps[0].pose == Pose(30, 70, 90)
+
+
+# -- the guard ---------------------------------------------------------------------------
 
 def test_guard_refuses_unsafe_joint_targets(planner: Planner) -> None:
-    with pytest.raises(CollisionError, match="shadow cone"):
+    with pytest.raises(CollisionError, match="swept volumes"):
         planner.check_joints({"light_theta": 30, "camera_theta": 32, "camera_phi": 0})
+    with pytest.raises(CollisionError, match="shadow cone"):
+        planner.check_joints({"light_theta": 30, "camera_theta": 37, "camera_phi": 0})
     with pytest.raises(LimitError, match="camera_phi"):
         planner.check_joints({"light_theta": 30, "camera_theta": 32, "camera_phi": 179.5})
     with pytest.raises(LimitError, match="no target"):
@@ -57,17 +153,91 @@ def test_guard_refuses_unsafe_joint_targets(planner: Planner) -> None:
     planner.check_joints({"light_theta": 30, "camera_theta": 32, "camera_phi": 90})
 
 
+def test_swept_path_collision(planner: Planner) -> None:
+    """The camera swinging past the light collides on the way, though both ends are safe."""
+    a = {"light_theta": 40, "camera_theta": 40, "camera_phi": 30}
+    b = {"light_theta": 40, "camera_theta": 40, "camera_phi": -30}
+    planner.check_joints(a)
+    planner.check_joints(b)
+    with pytest.raises(CollisionError, match="on the way"):
+        planner.check_move(a, b)
+    planner.check_move(a, {"light_theta": 40, "camera_theta": 40, "camera_phi": 90})
+    # Going over the top instead (camera elevation first) is a different, safe path.
+    planner.check_move(a, {"light_theta": 40, "camera_theta": 75, "camera_phi": 30})
+
+
+def test_plan_avoids_moves_through_the_light(planner: Planner) -> None:
+    # Poses just either side of the light's azimuth at the light's elevation: a sweep that
+    # took them in azimuth order would swing the camera through the light.
+    poses = [Pose(40, 40 + d, dp) for d in (-2, 0, 2) for dp in (20, 25, -20, -25)]
+    sweep = planner.plan(poses, planner.reference_joints())
+    assert sweep.extra["unsafe_moves"] == 0
+    current = sweep.start_joints
+    for step in sweep.steps:
+        planner.check_move(current, step.joints)
+        current = step.joints
+
+
+def test_segment_distance() -> None:
+    o = np.zeros(3)
+    x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    assert segment_distance(o + 2 * y, x + 2 * y, o, x) == pytest.approx(2)  # parallel
+    assert segment_distance(np.array([2.0, -1, 1]), np.array([2.0, 1, 1]), o, x) == pytest.approx(
+        math.hypot(1, 1))  # crossing beyond an end
+    assert segment_distance(np.array([0.5, -1, 0.3]), np.array([0.5, 1, 0.3]), o, x) == pytest.approx(0.3)
+
+
+# -- sweeps ------------------------------------------------------------------------------
+
 def test_quick_plan_rejections_and_estimate(rig_sim_path: Path, plan_quick_path: Path) -> None:
     rig, plan = load_rig(rig_sim_path), load_plan(plan_quick_path)
     planner = Planner.for_plan(rig, plan)
-    sweep = planner.plan(plan.poses(), planner.joints_for(Pose(0, 45, 180)))
+    start = planner.reference_joints()
+    sweep = planner.plan(plan.poses(), start)
     assert len(sweep.steps) + len(sweep.rejected) == len(plan.poses())
     assert set(sweep.rejected_counts()) <= {r.value for r in Reason}
+    current = start
     for step in sweep.steps:
         planner.check_joints(step.joints)  # every planned target passes the guard
+        assert planner.kinematics.forward(step.joints).theta_i == pytest.approx(step.pose.theta_i)
+        assert step.move_s == pytest.approx(planner.time_model.move_s(current, step.joints))
+        current = step.joints
     assert sweep.motion_s == pytest.approx(sum(s.move_s for s in sweep.steps))
-    assert sweep.estimated_s > sweep.motion_s
-    assert sweep.motion_s <= sweep.naive_motion_s
+    assert sweep.lower_bound_motion_s <= sweep.motion_s < sweep.naive_motion_s
+    per_pose = planner.time_model.step_overhead_s()
+    assert sweep.overhead_s == pytest.approx(len(sweep.steps) * per_pose)
+    # White reference first and last: two captures plus the moves out and back.
+    back = planner.time_model.move_s(sweep.steps[-1].joints, start)
+    assert sweep.reference_s == pytest.approx(2 * per_pose + back)
+    assert sweep.estimated_s == pytest.approx(sweep.motion_s + sweep.overhead_s + sweep.reference_s)
+    summary = sweep.summary()
+    assert set(summary) == {"poses", "rejected", "estimated_s", "motion_s", "naive_motion_s",
+                            "lower_bound_motion_s"}
+
+
+def test_reference_every_adds_round_trips(rig: RigConfig, plan_quick_path: Path) -> None:
+    plan = load_plan(plan_quick_path)
+    plain = Planner.for_plan(rig, plan)
+    every = Planner(rig, reference_every=10)
+    start = plain.reference_joints()
+    a, b = plain.plan(plan.poses(), start), every.plan(plan.poses(), start)
+    assert a.motion_s == pytest.approx(b.motion_s)
+    n_extra = (len(b.steps) - 1) // 10
+    assert b.reference_s > a.reference_s + n_extra * plain.time_model.step_overhead_s()
+
+
+def test_coaxial_plan_keeps_the_arms_apart() -> None:
+    rig = load_rig(EXAMPLES / "rig-coaxial-sim.toml")
+    plan = load_plan(EXAMPLES / "plan-quick.toml")
+    planner = Planner.for_plan(rig, plan)
+    sweep = planner.plan(plan.poses(), planner.reference_joints())
+    assert len(sweep.steps) > 80 and sweep.extra["unsafe_moves"] == 0
+    current = sweep.start_joints
+    for step in sweep.steps:
+        planner.check_move(current, step.joints)  # no move swings one arm through the other
+        back = planner.kinematics.forward(step.joints)
+        assert back.theta_r == pytest.approx(step.pose.theta_r, abs=1e-9)
+        current = step.joints
 
 
 def test_serpentine_alternates_inner_direction() -> None:

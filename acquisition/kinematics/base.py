@@ -131,6 +131,8 @@ class Kinematics(ABC):
     name: str = "abstract"
     joint_names: tuple[str, ...] = ()
     free_joints: tuple[str, ...] = ()
+    moving_arms: bool = True
+    """False for rigs whose light and camera never move (no collision to check)."""
 
     def __init__(
         self,

@@ -24,6 +24,7 @@ class LightStage(Kinematics):
 
     name = "light-stage"
     joint_names = ("light",)
+    moving_arms = False
 
     def __init__(
         self,

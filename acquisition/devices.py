@@ -440,6 +440,15 @@ class RigDevices:
         else:
             self.holder.present(target)
 
+    def light(self, on: bool) -> None:
+        """Switch the rig's light (dark frames). Simulated rigs only, for now."""
+        if self.holder is None:
+            raise ConfigError(
+                f"{self.rig.path}: this rig declares no light controller, so dark frames need "
+                "the lamp switched by hand: remove Dark steps or take darks with `gonio calibrate dark`"
+            )
+        self.holder.light_on = on
+
     def stop_motion(self) -> None:
         self.motion.stop()
 

@@ -34,7 +34,7 @@ from drivers.errors import SessionError
 
 from .journal import StepRecord
 from .kinematics import Pose
-from .session import REFERENCE, SessionFolder
+from .session import POSE, REFERENCE, SessionFolder
 from .tables import IsotropicTable
 
 
@@ -212,7 +212,7 @@ def reduce_session(
         cal.noise_for(float(r.iso)) is not None for r in records if getattr(r, "iso", None))
     var_sum = np.zeros((int(np.prod(table.shape)), 3)) if with_noise else None
     var_n = np.zeros(int(np.prod(table.shape))) if with_noise else None
-    poses = [r for r in records if r.kind != REFERENCE]
+    poses = [r for r in records if r.kind == POSE]
     for k, rec in enumerate(poses):
         fs = signal(rec)
         cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))

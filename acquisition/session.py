@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from drivers.errors import GonioError, SafetyStop, SessionError, StorageError
+from drivers.errors import GonioError, HardwareError, SafetyStop, SessionError, StorageError
 
 from .journal import Journal, StepRecord
 from .kinematics import Pose
@@ -419,6 +419,8 @@ class SessionEngine:
             self._notify_error(exc)
             raise exc from None
         except GonioError as exc:
+            if isinstance(exc, HardwareError) and "gonio resume" not in str(exc):
+                exc.args = (f"{exc}; then continue with `gonio resume {self.folder.path}`",)
             journal.try_log("error", str(exc), self._current)
             self._notify_error(exc)
             raise

@@ -38,6 +38,8 @@ class SampleHolder:
     sample: Material
     white: Material
     current: str = "sample"
+    light_on: bool = True
+    """Whether the simulated lamp is lit (off for dark frames)."""
 
     def present(self, target: str) -> None:
         """Put ``target`` ("sample" or "white") on the stage (instantaneous in simulation)."""
@@ -84,7 +86,7 @@ def make_scene(
     def scene() -> np.ndarray:
         image = np.zeros((h, w, 3))
         image[ys, xs] = radiance_at(
-            kinematics, true_joints(), holder.material, rig.light_intensity_w_per_sr
+            kinematics, true_joints(), holder.material, rig.light_intensity_w_per_sr * holder.light_on
         )
         return image
 
@@ -118,7 +120,8 @@ def make_image_scene(
     def scene() -> np.ndarray:
         g = kinematics.forward_geometry(true_joints())
         target = None if holder.current == "sample" else "flat"
-        return render_image(rig, g.light_dir, g.camera_dir, holder.material,
-                            shape_superpixels, target)
+        image = render_image(rig, g.light_dir, g.camera_dir, holder.material,
+                             shape_superpixels, target)
+        return image if holder.light_on else np.zeros_like(image)
 
     return scene

@@ -14,7 +14,7 @@ import numpy as np
 from simulators.materials import Material, material_from_spec
 
 from .reduce import binning_pose
-from .session import REFERENCE, SessionFolder
+from .session import POSE, SessionFolder
 from .tables import IsotropicTable
 
 
@@ -30,7 +30,7 @@ def truth_table(session_dir: str | Path, material: Material | None = None) -> Is
                            plan.table.delta_phi_edges, provenance={"truth": material.spec})
     with folder.journal() as journal:
         for rec in journal.steps():
-            if rec.status != "done" or rec.kind == REFERENCE:
+            if rec.status != "done" or rec.kind != POSE:
                 continue
             g = kin.forward_geometry(rec.joints_read or rec.joints_cmd)
             pose = binning_pose(rec)

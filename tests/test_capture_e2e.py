@@ -141,3 +141,24 @@ def test_pose_outside_limits_is_refused(
                  "--out", str(tmp_path / "s"), "--material", "lambert:albedo=0.5"])
     err = capsys.readouterr().err
     assert code != 0 and "no measurable pose" in err and err.count("\n") == 1
+
+
+def test_scripted_dark_frames_switch_the_simulated_lamp(rig_sim_path: Path, small_plan: Path,
+                                                         tmp_path: Path) -> None:
+    """A Dark step exposes with the lamp off; the reduction ignores it as a sample."""
+    from acquisition.kinematics import Pose
+    from acquisition.steps import Dark, Expose, Move, Reference
+    from calibration.linearize import linearize, roi_mean
+    from calibration.raw import load_raw
+
+    out = tmp_path / "dark"
+    with api.scripted_session(out, rig_sim_path, small_plan, material="lambert:albedo=0.5") as s:
+        s.run([Reference(), Move(Pose(30, 30, 90)), Expose(), Dark(), Reference()])
+    with Journal(out / JOURNAL_FILE) as j:
+        rows = {r.kind: r for r in j.steps()}
+    x0, y0, x1, y1 = 12, 8, 36, 24
+    lit = roi_mean(linearize(load_raw(out / "frames" / rows["pose"].frame)), (x0, y0, x1 - x0, y1 - y0))
+    dark = roi_mean(linearize(load_raw(out / "frames" / rows["dark"].frame)), (x0, y0, x1 - x0, y1 - y0))
+    assert np.all(dark[0] < 0.02 * lit[0])
+    table = api.reduce(out).table
+    assert int(table.count.sum()) == 1

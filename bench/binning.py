@@ -4,8 +4,8 @@
 a point light, row by row, frame by frame) on one core and reports
 
 * ``binning_msamples_per_s``: the public path from (θh, θd, φd) in degrees
-  (:meth:`MerlTable.add_halfdiff`, numba backend: bin index and count, Σ, Σ² per channel fused
-  in one compiled pass), compiled beforehand;
+  (:meth:`MerlTable.add_halfdiff`, numba backend: bin index with the reference reader's
+  arithmetic, and count, Σ, Σ² per channel, fused in one compiled pass), compiled beforehand;
 * ``binning_numpy_msamples_per_s``: the same calls with the numpy backend, same run;
   ``binning_numba_speedup`` is the ratio;
 * ``binning_vectors_msamples_per_s`` / ``binning_vectors_numpy_msamples_per_s``: the full path
@@ -23,7 +23,7 @@ the machines are shared, and CPU time is what "per core" means.
 
 Where the time goes (one core): numpy's seven scatter-adds cost ~20 ns per sample whatever the
 trick, so numpy tops out near 30 M/s. The numba kernel indexes a block of 1024 samples in a
-branch-free loop LLVM vectorises (~2–3 ns per sample) and then accumulates it (~6 ns per
+branch-free loop LLVM vectorises (~3–4 ns per sample, divisions included) and then accumulates it (~6 ns per
 sample in image order; random order is memory-latency bound at any speed). The vector path is
 bounded by three scalar inverse trigonometric calls (~15 ns each).
 """

@@ -17,7 +17,7 @@ from acquisition.halfdiff import (
     halfdiff_rad_from_vectors,
     halfdiff_rad_reference,
     merl_bin_edges,
-    merl_flat_index,
+    merl_flat_index_rad,
 )
 from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable, kernels
 from acquisition.tables.backend import ENV_VAR, resolve_backend
@@ -142,9 +142,13 @@ def test_merl_halfdiff_index_and_table_match_numpy():
     pd = np.concatenate([rng.uniform(-400, 400, n), _halfdiff_edge_cases()[2]])
     got = np.empty(th.size, dtype=np.int64)
     kernels.merl_flat_index_deg(th, td, pd, got)
-    want = merl_flat_index(th, td, pd, clamp=False)
-    np.testing.assert_array_equal(got, want)
+    rad = [np.radians(a) for a in (th, td, pd)]
+    np.testing.assert_array_equal(got, merl_flat_index_rad(*rad, clamp=False))
     assert (got == -2).any() and (got == -1).any() and (got >= 0).mean() > 0.8
+    # Inside the table it is the reference reader's (clamped) index, bin edges included.
+    inside = (got >= 0) & (pd > -180.0) & (pd <= 180.0)
+    np.testing.assert_array_equal(got[inside], merl_flat_index_rad(*rad)[inside])
+    assert inside.sum() > 20_000
     vals = rng.uniform(0, 2, (th.size, 3))
     vals[::101, 1] = np.nan
     tables = {b: MerlTable(backend=b) for b in ("numba", "numpy")}

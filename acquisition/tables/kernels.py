@@ -1,7 +1,7 @@
 """Numba kernels for binning: bin index and accumulation fused in one compiled pass.
 
 Each kernel walks the samples in blocks of :data:`BLOCK`: it computes the block's flat bin
-indices into a small buffer (for (θh, θd, φd) in degrees a branch-free loop that LLVM
+indices into a small buffer (for (θh, θd, φd) given directly, a branch-free loop that LLVM
 vectorises), then adds 1 to the count and x, x² to the sums of every channel. The index uses
 exactly the arithmetic of the numpy path (same operations in the same order, no fast-math), so
 bins are the same, up to the case where numba's libm and numpy differ in the last bit of an
@@ -107,47 +107,28 @@ def accumulate_flat(idx, vals, count, sums, sumsq):  # pragma: no cover - compil
 
 # ---------------------------------------------------------------------------- MERL indices
 @njit(**_JIT)
-def _merl_flat_deg(th, td, pd):  # pragma: no cover - compiled
-    """Unclamped flat MERL index of (θh, θd, φd) in degrees (the numpy degree fast path).
-
-    θh bin ⌊√(θh·90)⌋, θd bin ⌊θd⌋, φd bin ⌊φd′⌋ (one bin per degree), φd folded like
-    :func:`acquisition.halfdiff.flat_index_unclamped_into`; −2 for NaN, −1 outside.
-    """
-    if -180.0 < pd <= 180.0:  # noqa: SIM108 (one ternary per branch reads better)
-        p = (180.0 if pd < 0.0 else 0.0) + pd
-    else:
-        p = pd % 180.0  # np.mod semantics (result in [0, 180)); NaN for ±inf
-    if math.isnan(th) or math.isnan(td) or math.isnan(p):
-        return DROP_NAN
-    if not (th >= 0.0 and th <= 90.0 and td >= 0.0 and td <= 90.0):
-        return DROP_OUT_OF_RANGE
-    h = min(math.floor(math.sqrt(th * _NH)), _NH - 1.0)
-    d = min(math.floor(td), _ND - 1.0)
-    p = min(math.floor(p), _NP - 1.0)
-    return int((h * _ND + d) * _NP + p)
-
-
-@njit(**_JIT)
-def _merl_block_deg(th, td, pd, a, out):  # pragma: no cover - compiled
-    """Flat MERL index of samples ``a + j`` (degrees) into ``out[j]``; returns how many
-    needed the general path.
+def _merl_block(th, td, pd, a, out, scale):  # pragma: no cover - compiled
+    """Flat MERL index of samples ``a + j`` into ``out[j]``, angles times ``scale`` in radians
+    (π/180 for degrees, exactly ``np.radians``; 1 for radians); returns how many needed the
+    general path.
 
     A branch-free pass (LLVM vectorises it, ~4× the scalar speed) computes the index of every
-    sample inside the table with φd in (−180°, 180°], the same arithmetic as
-    :func:`_merl_flat_deg`; the rest (NaN, out of range, φd to fold) go through that function.
+    sample inside the table with φd in (−π, π] with the reference's arithmetic, exactly as
+    :func:`_merl_flat_rad`; the rest (NaN, out of range, φd to fold) go through that function.
     """
     n_slow = 0
     for j in range(out.size):
-        x = th[a + j]
-        y = td[a + j]
-        z = pd[a + j]
-        ok = (x >= 0.0) & (x <= 90.0) & (y >= 0.0) & (y <= 90.0) & (z > -180.0) & (z <= 180.0)
-        p = (180.0 if z < 0.0 else 0.0) + z
-        h = np.floor(np.sqrt(x * _NH))
+        x = th[a + j] * scale
+        y = td[a + j] * scale
+        z = pd[a + j] * scale
+        ok = (x >= 0.0) & (x <= _HALF_PI) & (y >= 0.0) & (y <= _HALF_PI)
+        ok = ok & (z > -np.pi) & (z <= np.pi)
+        p = (np.pi if z < 0.0 else 0.0) + z
+        h = np.floor(np.sqrt(x / _HALF_PI * _NH * _NH))
         h = h if h < _NH - 1.0 else _NH - 1.0
-        d = np.floor(y)
+        d = np.floor(y / _HALF_PI * _ND)
         d = d if d < _ND - 1.0 else _ND - 1.0
-        p = np.floor(p)
+        p = np.floor(p / np.pi * _NP)
         p = p if p < _NP - 1.0 else _NP - 1.0
         flat = (h * _ND + d) * _NP + p
         out[j] = int(flat) if ok else -3
@@ -155,7 +136,7 @@ def _merl_block_deg(th, td, pd, a, out):  # pragma: no cover - compiled
     if n_slow:
         for j in range(out.size):
             if out[j] == -3:
-                out[j] = _merl_flat_deg(th[a + j], td[a + j], pd[a + j])
+                out[j] = _merl_flat_rad(th[a + j] * scale, td[a + j] * scale, pd[a + j] * scale)
     return n_slow
 
 
@@ -265,12 +246,13 @@ def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
 
 @njit(**_JIT)
 def merl_add_halfdiff_deg(th, td, pd, vals, count, sums, sumsq):  # pragma: no cover - compiled
-    """Bin samples at (θh, θd, φd) in degrees into a MERL table; returns (kept, nan, range)."""
+    """Bin samples at (θh, θd, φd) in degrees (converted like ``np.radians``, then binned with
+    the reference's arithmetic) into a MERL table; returns (kept, nan, range)."""
     tally = np.zeros(3, dtype=np.int64)
     buf = np.empty(min(BLOCK, th.size), dtype=np.int64)
     for a in range(0, th.size, BLOCK):
         m = min(BLOCK, th.size - a)
-        _merl_block_deg(th, td, pd, a, buf[:m])
+        _merl_block(th, td, pd, a, buf[:m], _DEG2RAD)
         _accumulate_block(buf[:m], vals, a, count, sums, sumsq, tally)
     return tally[0], tally[1], tally[2]
 
@@ -319,7 +301,7 @@ def merl_flat_index_angles(ti, tr, dp, out):  # pragma: no cover - compiled
 @njit(**_JIT)
 def merl_flat_index_deg(th, td, pd, out):  # pragma: no cover - compiled
     """Flat MERL index per (θh, θd, φd) in degrees into ``out`` (what merl_add_halfdiff_deg bins)."""
-    _merl_block_deg(th, td, pd, 0, out)
+    _merl_block(th, td, pd, 0, out, _DEG2RAD)
 
 
 # ---------------------------------------------------------------------------- isotropic

@@ -132,7 +132,10 @@ class MerlTable:
     ) -> int:
         """Bin samples given directly as (θh, θd, φd) in degrees. Returns the number kept.
 
-        The fastest entry point: the index is computed from degrees directly.
+        The fastest entry point. Angles are converted like ``np.radians`` and binned with the
+        reference reader's arithmetic, so a sample lands where the reference lookup at those
+        angles reads (even on a bin edge). θh or θd outside [0°, 90°] is dropped; φd outside
+        (−180°, 180°] is folded by whole half turns.
         """
         th, td, pd = (
             np.asarray(x, dtype=np.float64).reshape(-1)
@@ -146,7 +149,9 @@ class MerlTable:
         for a in range(0, th.size, CHUNK):
             b = min(a + CHUNK, th.size)
             flat = idx[: b - a]
-            valid = flat_index_unclamped_into(th[a:b], td[a:b], pd[a:b], flat, 180.0)
+            valid = flat_index_unclamped_into(
+                np.radians(th[a:b]), np.radians(td[a:b]), np.radians(pd[a:b]), flat, np.pi
+            )
             kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
         return kept
 

@@ -251,3 +251,22 @@ def test_trapezoid_time() -> None:
     assert trapezoid_time_s(100, 50, 100) == pytest.approx(100 / 50 + 50 / 100)
     assert trapezoid_time_s(4, 50, 100) == pytest.approx(2 * (4 / 100) ** 0.5)
     assert trapezoid_time_s(0, 50, 100) == 0
+
+
+# -- CLI ---------------------------------------------------------------------------------
+
+def test_gonio_plan_json_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from acquisition.cli import main
+
+    png = tmp_path / "plan.png"
+    code = main(["plan", str(EXAMPLES / "plan-quick.toml"), "--rig", str(EXAMPLES / "rig-sim.toml"),
+                 "--json", "--plot", str(png)])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"poses", "rejected", "estimated_s", "motion_s", "naive_motion_s",
+                        "lower_bound_motion_s"}
+    assert out["poses"] + sum(out["rejected"].values()) == 6 * 6 * 7
+    assert out["lower_bound_motion_s"] <= out["motion_s"] <= out["naive_motion_s"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000

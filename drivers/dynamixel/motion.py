@@ -236,7 +236,10 @@ class MotionController:
             )
 
     def stop(self) -> dict[str, float]:
-        """Stop every axis where it is (goal := present, torque stays on); return degrees.
+        """Stop every axis at once, braking without reversal (torque stays on).
+
+        Returns where each axis comes to rest (degrees): its present position plus the braking
+        distance at its profile acceleration, clamped to the soft limits.
 
         All positions are read first (one sync read per bus), then all goals written (one sync
         write per bus), so the axes stop within one control cycle of each other.
@@ -249,16 +252,31 @@ class MotionController:
         groups = self._groups(self._axes)
         present: dict[ServoBus, dict[int, int]] = {}
         errors: list[Exception] = []
+        goals: dict[ServoBus, dict[int, int]] = {}
         for bus, names in groups.items():
             try:
+                # One sync read of 108–135: profile acceleration, velocity, present position.
                 # No Alert check: a servo in hardware error still reports where it is.
                 raw = bus.sync_read([self._axes[n].servo_id for n in names],
-                                    Addr.PRESENT_POSITION, 4, check_alert=False)
+                                    Addr.PROFILE_ACCELERATION, 28, check_alert=False)
             except GonioError as exc:
                 errors.append(exc)
                 continue
-            present[bus] = {i: int.from_bytes(b, "little", signed=True) for i, b in raw.items()}
-        for bus, ticks in present.items():
+
+            def field(b: bytes, addr: int) -> int:
+                off = addr - Addr.PROFILE_ACCELERATION
+                return int.from_bytes(b[off:off + 4], "little", signed=True)
+
+            present[bus] = {i: field(b, Addr.PRESENT_POSITION) for i, b in raw.items()}
+            goals[bus] = {
+                sid: self._braking_goal(
+                    self._axes[n], field(raw[sid], Addr.PRESENT_POSITION),
+                    field(raw[sid], Addr.PRESENT_VELOCITY), field(raw[sid], Addr.PROFILE_ACCELERATION),
+                )
+                for n in names
+                for sid in (self._axes[n].servo_id,)
+            }
+        for bus, ticks in goals.items():
             try:
                 bus.write_goals(ticks)
             except GonioError as exc:
@@ -268,9 +286,25 @@ class MotionController:
         out = {}
         for bus, names in groups.items():
             for n in names:
-                if bus in present:
-                    out[n] = self._axes[n].ticks_to_deg(present[bus][self._axes[n].servo_id])
+                if bus in goals:
+                    out[n] = self._axes[n].ticks_to_deg(goals[bus][self._axes[n].servo_id])
         return out
+
+    @staticmethod
+    def _braking_goal(axis: Axis, position_ticks: int, velocity_units: int, accel_units: int) -> int:
+        """Where the axis comes to rest braking at the servo's profile acceleration, ticks.
+
+        Goal := present would make a moving X-series servo overshoot by v²/2a and drive back;
+        aiming at the braking point (clamped to the soft limits) stops it without reversing.
+        """
+        if velocity_units == 0 or accel_units <= 0:
+            return position_ticks
+        ticks_per_rev = axis.ticks_per_rev
+        v = velocity_units * 0.229 / 60.0 * ticks_per_rev  # ticks/s
+        a = accel_units * 214.577 / 3600.0 * ticks_per_rev  # ticks/s²
+        goal = position_ticks + (1 if v > 0 else -1) * v * v / (2.0 * a)
+        deg = min(max(axis.ticks_to_deg(goal), axis.min_deg), axis.max_deg)
+        return axis.deg_to_ticks(deg)
 
     def _stop_quietly(self) -> None:
         with contextlib.suppress(GonioError, KeyboardInterrupt):

@@ -35,3 +35,32 @@ def rig_sim_path() -> Path:
 @pytest.fixture
 def plan_quick_path() -> Path:
     return EXAMPLES / "plan-quick.toml"
+
+
+def grid_plan_text(
+    theta_i: tuple[float, float, float],
+    theta_r: tuple[float, float, float],
+    delta_phi: tuple[float, float, float],
+    *,
+    name: str = "small",
+    reference_every: int | None = None,
+) -> str:
+    """A grid plan file's text; each range is (start, stop, step) in degrees."""
+
+    def rng(r: tuple[float, float, float]) -> str:
+        return f"{{ start = {r[0]}, stop = {r[1]}, step = {r[2]} }}"
+
+    text = (
+        f'format_version = 1\nname = "{name}"\n[sampling]\nkind = "grid"\n'
+        f"theta_i = {rng(theta_i)}\ntheta_r = {rng(theta_r)}\ndelta_phi = {rng(delta_phi)}\n"
+    )
+    if reference_every is not None:
+        text += f"[capture]\nreference_every = {reference_every}\n"
+    return text
+
+
+SMALL_PLAN = grid_plan_text((0, 60, 30), (0, 60, 30), (0, 180, 90))
+"""27 candidate poses on a 30° × 30° × 90° grid: the suite's usual small capture."""
+
+TINY_PLAN_ARGS = ((20, 40, 20), (30, 30, 10), (90, 180, 90))
+"""Four poses: (θi 20/40) × (θr 30) × (Δφ 90/180)."""

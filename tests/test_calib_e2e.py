@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SMALL_PLAN
 
 import acquisition.simscene as simscene
 from acquisition import api
@@ -23,15 +24,7 @@ dark_current_e_per_s = 30.0
 black_noise_dn = 1.0
 """
 
-PLAN = """
-format_version = 1
-name = "small"
-[sampling]
-kind = "grid"
-theta_i = { start = 0, stop = 60, step = 30 }
-theta_r = { start = 0, stop = 60, step = 30 }
-delta_phi = { start = 0, stop = 180, step = 90 }
-"""
+PLAN = SMALL_PLAN
 
 GREY = 0.18 / math.pi
 

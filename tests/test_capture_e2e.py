@@ -7,6 +7,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import SMALL_PLAN, grid_plan_text
 
 from acquisition import api
 from acquisition.cli import main
@@ -16,25 +17,7 @@ from acquisition.tables import IsotropicTable
 from acquisition.truth import relative_errors, truth_table
 from drivers.errors import SafetyStop, SessionError
 
-SMALL_PLAN = """
-format_version = 1
-name = "small"
-[sampling]
-kind = "grid"
-theta_i = { start = 0, stop = 60, step = 30 }
-theta_r = { start = 0, stop = 60, step = 30 }
-delta_phi = { start = 0, stop = 180, step = 90 }
-"""
-
-SPECULAR_PLAN = """
-format_version = 1
-name = "specular"
-[sampling]
-kind = "grid"
-theta_i = { start = 20, stop = 60, step = 20 }
-theta_r = { start = 20, stop = 60, step = 20 }
-delta_phi = { start = 90, stop = 180, step = 45 }
-"""
+SPECULAR_PLAN = grid_plan_text((20, 60, 20), (20, 60, 20), (90, 180, 45), name="specular")
 
 
 @pytest.fixture

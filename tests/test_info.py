@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import TINY_PLAN_ARGS, grid_plan_text
 
 from acquisition import api
 from acquisition.cli import main
@@ -14,17 +15,7 @@ from acquisition.session import session_status
 from acquisition.tables import IsotropicTable
 from drivers.errors import SafetyStop
 
-PLAN = """
-format_version = 1
-name = "tiny"
-[sampling]
-kind = "grid"
-theta_i = { start = 20, stop = 40, step = 20 }
-theta_r = { start = 30, stop = 30, step = 10 }
-delta_phi = { start = 90, stop = 180, step = 90 }
-[capture]
-reference_every = 2
-"""
+PLAN = grid_plan_text(*TINY_PLAN_ARGS, name="tiny", reference_every=2)
 
 
 def test_session_info_tracks_an_interrupted_then_resumed_capture(

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import grid_plan_text
 
 from acquisition import api
 from acquisition.journal import Journal
@@ -20,17 +21,7 @@ from acquisition.session import JOURNAL_FILE, frame_name
 from acquisition.storage import TMP_SUFFIX, sha256_file
 from acquisition.tables import IsotropicTable
 
-PLAN = """
-format_version = 1
-name = "small"
-[sampling]
-kind = "grid"
-theta_i = { start = 0, stop = 60, step = 30 }
-theta_r = { start = 30, stop = 60, step = 30 }
-delta_phi = { start = 90, stop = 180, step = 90 }
-[capture]
-reference_every = 5
-"""
+PLAN = grid_plan_text((0, 60, 30), (30, 60, 30), (90, 180, 90), reference_every=5)
 MATERIAL = "ggx:albedo=0.3,alpha=0.25,f0=0.04"
 SEED = 11
 GONIO = Path(sys.executable).with_name("gonio")

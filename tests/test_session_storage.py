@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import TINY_PLAN_ARGS, grid_plan_text
 
 import simulators.camera
 from acquisition import api
@@ -17,15 +18,7 @@ from acquisition.journal import Journal
 from acquisition.session import JOURNAL_FILE, SessionFolder
 from drivers.errors import SessionError, StorageError
 
-PLAN = """
-format_version = 1
-name = "tiny"
-[sampling]
-kind = "grid"
-theta_i = { start = 20, stop = 40, step = 20 }
-theta_r = { start = 30, stop = 30, step = 10 }
-delta_phi = { start = 90, stop = 180, step = 90 }
-"""
+PLAN = grid_plan_text(*TINY_PLAN_ARGS, name="tiny")
 MATERIAL = "lambert:albedo=0.4"
 
 

@@ -80,7 +80,8 @@ class StepCosts:
     """Fixed per-pose costs in seconds, added to the motion time."""
 
     settle_s: float = 0.05
-    bus_cycle_s: float = 0.005
+    bus_cycle_s: float = 0.03
+    """Bus time of one move: the commands, and the position polls that confirm arrival."""
     exposure_s: float = 0.01
 
 

@@ -64,3 +64,20 @@ SMALL_PLAN = grid_plan_text((0, 60, 30), (0, 60, 30), (0, 180, 90))
 
 TINY_PLAN_ARGS = ((20, 40, 20), (30, 30, 10), (90, 180, 90))
 """Four poses: (θi 20/40) × (θr 30) × (Δφ 90/180)."""
+
+
+@pytest.fixture
+def clock():
+    """The simulated clock of the servo simulator (modules may override: faster motion)."""
+    from simulators.clock import SimClock
+
+    return SimClock(1.0)
+
+
+@pytest.fixture
+def sim(clock):
+    """Three simulated X-series servos (IDs 1–3) on a pty, sharing ``clock``."""
+    from simulators.dynamixel import SimServoBus
+
+    with SimServoBus([1, 2, 3], clock=clock) as bus:
+        yield bus

@@ -74,17 +74,6 @@ def patient_sdk(monkeypatch):
 
 
 @pytest.fixture
-def clock():
-    return SimClock(1.0)
-
-
-@pytest.fixture
-def sim(clock):
-    with SimServoBus([1, 2, 3], clock=clock) as bus:
-        yield bus
-
-
-@pytest.fixture
 def port(sim):
     p = open_port(sim.port)
     yield p

@@ -77,12 +77,6 @@ def clock():
 
 
 @pytest.fixture
-def sim(clock):
-    with SimServoBus([1, 2, 3], clock=clock) as bus:
-        yield bus
-
-
-@pytest.fixture
 def bus(sim):
     with ServoBus(sim.port, name="arms") as b:
         b.set_return_delay([1, 2, 3], 0)

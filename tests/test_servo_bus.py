@@ -16,19 +16,7 @@ from drivers.dynamixel import (
 )
 from drivers.dynamixel.latency import latency_timer_ms, latency_warning
 from drivers.errors import CommunicationError, ConfigError, HardwareError
-from simulators.clock import SimClock
 from simulators.dynamixel import SimServoBus
-
-
-@pytest.fixture
-def clock():
-    return SimClock(1.0)
-
-
-@pytest.fixture
-def sim(clock):
-    with SimServoBus([1, 2, 3], clock=clock) as bus:
-        yield bus
 
 
 @pytest.fixture

@@ -212,7 +212,12 @@ def reduce(
     progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
     """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5)."""
-    result = reduce_session(session_dir, progress)
+    from .lightstage.reduce import is_lightstage_session, reduce_lightstage_session
+
+    if is_lightstage_session(session_dir):
+        result: Reduction = reduce_lightstage_session(session_dir, progress)
+    else:
+        result = reduce_session(session_dir, progress)
     out = Path(table_path) if table_path else Path(session_dir) / "brdf.h5"
     result.table.save_h5(out)
     return result

@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.console",
     "acquisition.cli.inspect",
     "acquisition.cli.calibrate",
+    "acquisition.cli.lightstage",
 )
 """Modules that register sub-commands, in the order ``gonio --help`` lists them."""
 

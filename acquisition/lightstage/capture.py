@@ -1,0 +1,178 @@
+"""Light-stage capture into a durable session folder, and resuming it.
+
+The session folder is the one ``gonio capture`` writes (:mod:`acquisition.session`): rig and
+plan copies, ``session.json``, the SQLite journal and ``frames/step-NNNNNN.dng``. The plan file
+only gives the table bins and capture settings (a default one is written when none is given);
+the steps come from :func:`acquisition.lightstage.sequences.capture_steps`, whose arguments are
+stored in the journal's ``lightstage`` meta entry so that :func:`resume_lightstage` replays
+exactly the same sequence and skips what is done.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.errors import SessionError
+from simulators.materials import material_from_spec
+
+from ..journal import StepRecord
+from ..observers import Observer, ProgressObserver
+from ..planner import Planner
+from ..rig import load_rig
+from ..session import SessionEngine, SessionFolder, create_session
+from .config import StageConfig, stage_config
+from .devices import LightStageDevices, open_lightstage
+from .sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
+
+DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
+META_KEY = "lightstage"
+
+DEFAULT_PLAN = """\
+# Light-stage session settings (written by gonio lightstage capture): table bins and exposure.
+# The frames themselves come from the light-stage sequence, not from these poses.
+format_version = 1
+name = "lightstage"
+[sampling]
+kind = "list"
+reciprocal = "both"
+bin_deg = 5
+poses = [[0, 0, 0]]
+"""
+
+Progress = Callable[[int, int, StepRecord], None]
+
+
+class LightStageEngine(SessionEngine):
+    """A :class:`SessionEngine` that also runs :class:`LightFrame` records on a light stage."""
+
+    def __init__(self, folder: SessionFolder, devices: LightStageDevices, planner: Planner,
+                 observers: Sequence[Observer] = ()) -> None:
+        super().__init__(folder, devices, planner, observers=observers)
+        self.handlers[LightFrame] = self._light_frame  # type: ignore[assignment]
+        self._kin = self.rig.kinematics()
+
+    def _light_frame(self, step: LightFrame) -> None:
+        pose = None
+        if step.light is not None:
+            pose = self._kin.forward(step.joints)
+        rec = self._claim(step.kind, pose, step.joints, step.pattern)
+        if rec is None:
+            return
+        self._current = rec.step
+        exposure = step.exposure_s or self.plan.capture.exposure_s or self.rig.camera.exposure_s
+        if step.target != self._present:
+            self.devices.present(step.target)
+            self._present = step.target
+        self.devices.set_levels(step.levels, hold_s=exposure)  # type: ignore[attr-defined]
+        self._readback = step.joints
+        self._shoot(rec, exposure, self.plan.capture.iso or self.rig.camera.iso,
+                    retake_clipped=False)
+
+
+@dataclass
+class LightStageResult:
+    """Where a light-stage capture went and how it ended."""
+
+    session: SessionFolder
+    counts: dict[str, int]
+    device_seconds: float | None
+    """Rig time the run took on the devices' clock (s)."""
+    estimate: TimeEstimate
+    """Predicted rig time of the whole sequence."""
+
+
+def plan_lightstage(rig_path: str | Path, sequences: Sequence[str] = ("olat",), *,
+                    white: bool = True, dark: bool = True,
+                    exposure_s: float | None = None) -> TimeEstimate:
+    """Time estimate of a light-stage capture without touching a device."""
+    rig = load_rig(rig_path)
+    stage = stage_config(rig)
+    steps = capture_steps(stage, sequences, white=white, dark=dark)
+    return estimate_s(stage, steps, exposure_s or rig.camera.exposure_s)
+
+
+def capture_lightstage(
+    rig_path: str | Path,
+    out: str | Path,
+    *,
+    sequences: Sequence[str] = ("olat",),
+    material: str | None = None,
+    seed: int = 0,
+    plan_path: str | Path | None = None,
+    calibration: str | Path | None = None,
+    white: bool = True,
+    dark: bool = True,
+    progress: Progress | None = None,
+    observers: Sequence[Observer] = (),
+) -> LightStageResult:
+    """Create a session folder at ``out`` and capture the light-stage sequence into it.
+
+    ``sequences`` are names of :data:`acquisition.lightstage.sequences.SEQUENCES`; a white
+    reference OLAT pass (``white``) and a dark frame (``dark``) come first.
+    """
+    rig = load_rig(rig_path)
+    stage = stage_config(rig)
+    capture_steps(stage, sequences)  # unknown sequence names fail before anything is created
+    if rig.simulated:
+        material = material or DEFAULT_MATERIAL
+        material_from_spec(material)
+    with tempfile.TemporaryDirectory() as tmp:
+        if plan_path is None:
+            plan_path = Path(tmp) / "plan.toml"
+            plan_path.write_text(DEFAULT_PLAN)
+        folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
+                                   calibration=calibration, scripted=True)
+    with folder.journal() as journal:
+        journal.set_meta(META_KEY, {"sequences": list(sequences), "white": white, "dark": dark})
+    return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage)
+
+
+def resume_lightstage(
+    session_dir: str | Path,
+    *,
+    progress: Progress | None = None,
+    observers: Sequence[Observer] = (),
+    stage: StageConfig | None = None,
+) -> LightStageResult:
+    """Continue a light-stage session: replay its sequence, skipping the frames done."""
+    folder = SessionFolder(session_dir)
+    with folder.journal() as journal:
+        meta = journal.meta(META_KEY)
+    if meta is None:
+        raise SessionError(f"{folder.path} is not a light-stage session: continue it with "
+                           f"`gonio resume {folder.path}`")
+    rig = folder.rig()
+    stage = stage or stage_config(rig)
+    steps = capture_steps(stage, meta["sequences"], white=meta["white"], dark=meta["dark"])
+    estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
+    spec = folder.info.material
+    material = material_from_spec(spec) if spec else None
+    obs = list(observers)
+    if progress is not None:
+        obs.append(ProgressObserver(progress))
+    planner = Planner.for_plan(rig, folder.plan())
+    with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage) as devices:
+        engine = LightStageEngine(folder, devices, planner, obs)
+        t0 = devices.device_time_s()
+        counts = engine.run(steps, _frames(steps))
+        t1 = devices.device_time_s()
+    return LightStageResult(folder, counts, None if t0 is None or t1 is None else t1 - t0,
+                            estimate)
+
+
+def session_sequences(session_dir: str | Path) -> list[str]:
+    """The sample sequences a light-stage session was started with."""
+    folder = SessionFolder(session_dir)
+    with folder.journal(readonly=True) as journal:
+        meta = journal.meta(META_KEY)
+    if meta is None:
+        raise SessionError(f"{folder.path} is not a light-stage session")
+    return list(meta["sequences"])
+
+
+def _frames(steps: Sequence[object]) -> int:
+    """LightFrame records (count_rows only knows the built-in records)."""
+    return sum(isinstance(s, LightFrame) for s in steps)

@@ -510,18 +510,6 @@ def path_motion_s(problem: Problem, order: np.ndarray, choice: np.ndarray) -> fl
 
 
 # ---------------------------------------------------------------------------- lower bound
-def _min_pair_costs(problem: Problem, rows: np.ndarray, pts: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(len(rows), M) cheapest move time between any configurations of two nodes."""
-    a = pts[rows]  # (R, K, J)
-    out = np.full((len(rows), len(pts)), np.inf)
-    for ka in range(pts.shape[1]):
-        for kb in range(pts.shape[1]):
-            c = problem.cost(a[:, None, ka, :], pts[None, :, kb, :])
-            c = np.where(valid[rows, ka][:, None] & valid[None, :, kb], c, np.inf)
-            np.minimum(out, c, out=out)
-    return out
-
-
 def _nodes(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     """Configurations (M, K, J) of the poses, the start and (if fixed) the finish."""
     extra = [problem.start] + ([problem.finish] if problem.finish is not None else [])

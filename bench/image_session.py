@@ -3,7 +3,7 @@
 ``bench_image_session()`` captures one 100-frame image-based session of a GGX sphere on the
 simulated rig (``examples/rig-sphere-sim.toml`` at 300 × 300 px so the capture stays short),
 then reduces it in a fresh subprocess. Memory is the growth of the process's peak resident
-set (``ru_maxrss``) from after the imports, read after each frame: after frame 25 is the
+set (``VmHWM``, reset after the imports) from the resident set after the imports, read after each frame: after frame 25 is the
 baseline of the same run, after frame 100 the figure (tracemalloc would slow the reduction
 ~10×). Reported:
 
@@ -31,14 +31,19 @@ FRAMES = 100
 BASELINE_FRAMES = 25
 
 _CHILD = """
-import json, resource, sys
+import json, sys
 from acquisition.reduce_image import reduce_image_session
-def rss():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-base = rss()
+def status_kb(field):
+    with open("/proc/self/status") as fh:
+        return next(int(line.split()[1]) for line in fh if line.startswith(field + ":"))
+# Reset the peak-RSS mark after the imports (numba's cache load peaks above the reduction's
+# steady state), so VmHWM measures the reduction alone.
+with open("/proc/self/clear_refs", "w") as fh:
+    fh.write("5")
+base = status_kb("VmRSS") * 1024
 peaks = {}
 def progress(done, total):
-    peaks[done] = rss() - base
+    peaks[done] = status_kb("VmHWM") * 1024 - base
 red = reduce_image_session(sys.argv[1], progress)
 print(json.dumps({"peaks": peaks, "frames": red.frames, "samples": red.samples}))
 """

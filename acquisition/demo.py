@@ -24,6 +24,7 @@ class DemoResult:
     measured_bins: int
     host_minutes: float
     rig_minutes: float | None
+    estimated_minutes: float
     median_rel_error: float
     peak_pose: tuple[float, float, float]
 
@@ -39,6 +40,7 @@ def run_demo(
 ) -> DemoResult:
     """Run the whole pipeline on the simulated rig into a new folder under ``out_root``."""
     t0 = time.monotonic()
+    estimate = api.plan_sweep(plan, rig).estimated_s
     session = Path(out_root) / time.strftime("session-%Y%m%d-%H%M%S")
     result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress)
     reduction = api.reduce(session, session / "brdf.h5")
@@ -57,6 +59,7 @@ def run_demo(
         measured_bins=int((table.count > 0).sum()),
         host_minutes=(time.monotonic() - t0) / 60,
         rig_minutes=None if result.device_seconds is None else result.device_seconds / 60,
+        estimated_minutes=estimate / 60,
         median_rel_error=float(np.median(relative_errors(table, truth))),
         peak_pose=(float(centers[0][i]), float(centers[1][j]), float(centers[2][k])),
     )

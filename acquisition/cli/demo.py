@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     with step_bar("demo capture") as bar:
         r = run_demo(args.out, material=args.material, seed=args.seed, progress=bar)
-    rig = f", {r.rig_minutes:.1f} min of simulated rig time" if r.rig_minutes else ""
+    rig = (f", {r.rig_minutes:.1f} min of simulated rig time "
+           f"(planner's estimate {r.estimated_minutes:.1f} min)" if r.rig_minutes else "")
     print(f"material        {args.material}")
     print(f"poses captured  {r.poses}")
     print(f"measured bins   {r.measured_bins}")

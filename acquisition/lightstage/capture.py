@@ -10,6 +10,8 @@ exactly the same sequence and skips what is done.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -22,7 +24,7 @@ from ..journal import StepRecord
 from ..observers import Observer, ProgressObserver
 from ..planner import Planner
 from ..rig import load_rig
-from ..session import SessionEngine, SessionFolder, create_session
+from ..session import INFO_FILE, SessionEngine, SessionFolder, create_session
 from .config import StageConfig, stage_config
 from .devices import LightStageDevices, open_lightstage
 from .sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
@@ -127,6 +129,10 @@ def capture_lightstage(
                                    calibration=calibration, scripted=True)
     with folder.journal() as journal:
         journal.set_meta(META_KEY, {"sequences": list(sequences), "white": white, "dark": dark})
+    steps = capture_steps(stage, sequences, white=white, dark=dark)
+    estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
+    info = dataclasses.replace(folder.info, estimated_s=estimate.total_s)
+    (folder.path / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
     return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage)
 
 

@@ -114,7 +114,13 @@ def resume(
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
 ) -> CaptureResult:
-    """Continue an interrupted session where it stopped."""
+    """Continue an interrupted session where it stopped (gonio or light-stage)."""
+    from .lightstage.reduce import is_lightstage_session
+
+    if is_lightstage_session(session_dir):
+        from .lightstage.capture import resume_lightstage
+
+        return resume_lightstage(session_dir, progress=progress, observers=observers)  # type: ignore[return-value]
     return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
                        observers=observers)
 

@@ -192,7 +192,7 @@ def load_rig(path: str | Path) -> RigConfig:
     top = Section(load_toml(path, "rig file"), str(path))
     top.check_keys({"format_version", "name", "kinematics", "simulation", "buses", "axes",
                     "geometry", "light", "camera", "white_reference", "arms", "sample",
-                    "light_stage", "timing"})
+                    "light_stage", "timing", "dmx"})
     version = top.integer("format_version")
     if version != RIG_FORMAT_VERSION:
         raise top.error("format_version", f"is {version}; this gonio reads version {RIG_FORMAT_VERSION}")

@@ -757,6 +757,9 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
         device = times[0] + sum(b - a if b >= a else b for a, b in zip(times, times[1:], strict=False))
     drift_pct = None
     refs = [r for r in done if r.kind == REFERENCE and r.frame]
+    # Drift compares like with like: references taken with the first one's joints (a light
+    # stage's per-LED white frames are lit by different lights).
+    refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
     if drift and len(refs) >= 2:
         from .reduce import frame_signal
 

@@ -213,9 +213,9 @@ def test_unplugged_widget_stops_cleanly_and_the_session_resumes(
     assert any(e[1] == "error" and "stopped responding" in e[3] for e in events)
     first_frames = {r.frame: (folder.frames_dir / str(r.frame)).read_bytes()
                     for r in records if r.status == "done"}
-    # resume through the CLI with a fresh (plugged-in) widget
+    # resume through the generic `gonio resume` with a fresh (plugged-in) widget
     monkeypatch.undo()
-    assert main(["lightstage", "resume", str(out)]) == 0
+    assert main(["resume", str(out)]) == 0
     assert "158 steps done" in capsys.readouterr().out
     with folder.journal(readonly=True) as journal:
         records = list(journal.steps())

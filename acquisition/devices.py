@@ -26,6 +26,7 @@ import numpy as np
 
 from calibration.linearize import linearize
 from calibration.raw import load_raw
+from drivers.camera import Camera
 from drivers.dynamixel import (
     COMMON_BAUD_RATES,
     Axis,
@@ -35,6 +36,7 @@ from drivers.dynamixel import (
 )
 from drivers.dynamixel.latency import SYSFS_USB_SERIAL, latency_warning
 from drivers.errors import ConfigError, HardwareError
+from drivers.gphoto2 import GPhoto2Camera
 from simulators.camera import SimCamera
 from simulators.clock import SimClock
 from simulators.dynamixel import SimServoBus
@@ -401,7 +403,7 @@ class RigDevices:
         self,
         rig: RigConfig,
         motion: MotionController,
-        camera: SimCamera,
+        camera: SimCamera | Camera,
         holder: SampleHolder | None,
         clock: SimClock | None,
         *,
@@ -432,7 +434,12 @@ class RigDevices:
         return dict(readback)
 
     def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
-        self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)
+        """Expose one RAW frame; ``frame_seed`` fixes a simulated camera's noise (resumes
+        re-shoot identical frames) and is meaningless to a real one."""
+        if isinstance(self.camera, SimCamera):
+            self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)
+        else:
+            self.camera.capture(path, exposure_s, iso)
 
     def present(self, target: str) -> None:
         if self.holder is None:  # pragma: no cover - hardware: the operator swaps targets
@@ -466,6 +473,24 @@ class RigDevices:
         return not bool(np.all(image.valid[y0:y1, x0:x1]))
 
 
+CAMERA_DRIVERS = ("simulated", "gphoto2")
+"""``[camera] driver`` values: the simulated RAW camera, or a DSLR/mirrorless body over gphoto2."""
+
+
+def check_camera_driver(rig: RigConfig) -> None:
+    """Refuse camera drivers gonio lacks, and a simulated camera on real servos."""
+    driver = rig.camera.driver
+    if driver not in CAMERA_DRIVERS:
+        raise ConfigError(
+            f"{rig.path}: [camera] driver '{driver}' is unknown: use one of {', '.join(CAMERA_DRIVERS)}"
+        )
+    if driver == "simulated" and not all(b.simulated for b in rig.buses.values()):
+        raise ConfigError(
+            f"{rig.path}: a simulated camera renders from the simulator's true servo angles; "
+            "set simulated = true on every [buses.*] or use driver = 'gphoto2'"
+        )
+
+
 @contextmanager
 def open_devices(
     rig: RigConfig,
@@ -477,15 +502,15 @@ def open_devices(
     health_limits: HealthLimits | None = None,
 ) -> Iterator[RigDevices]:
     """Open (and for simulated devices, start) everything the rig file declares."""
-    if rig.camera.driver != "simulated":
-        raise ConfigError(
-            f"{rig.path}: [camera] driver '{rig.camera.driver}' is not available here; "
-            "use 'simulated' (a gphoto2 driver is planned)"
-        )
+    check_camera_driver(rig)
     any_sim = any(b.simulated for b in rig.buses.values()) or rig.camera.driver == "simulated"
     clock = SimClock(rig.time_scale) if any_sim else None
     with open_servos(rig, planner, clock=clock, sim_faults=sim_faults, seed=seed,
                      health_limits=health_limits) as servos:
+        if rig.camera.driver == "gphoto2":
+            with GPhoto2Camera() as real_camera:
+                yield RigDevices(rig, servos.motion, real_camera, None, clock, health=servos.health)
+            return
         holder = None
         if material is not None:
             holder = SampleHolder(material, white_material(rig))

@@ -71,3 +71,18 @@ def test_plan_errors(plan_quick_path: Path, tmp_path: Path, old: str, new: str, 
 def test_material_errors(spec: str, match: str) -> None:
     with pytest.raises(MaterialError, match=match):
         material_from_spec(spec)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "match"),
+    [
+        ('driver = "simulated"', 'driver = "webcam"', r"driver 'webcam' is unknown"),
+        ("simulated = true", "simulated = false", r"simulated camera renders from the simulator"),
+    ],
+)
+def test_camera_driver_checks(rig_sim_path: Path, tmp_path: Path, old: str, new: str,
+                              match: str) -> None:
+    from acquisition.devices import check_camera_driver
+
+    with pytest.raises(ConfigError, match=match):
+        check_camera_driver(load_rig(edited(rig_sim_path, tmp_path, old, new)))

@@ -3,9 +3,9 @@
 ``bench_image_session()`` captures one 100-frame image-based session of a GGX sphere on the
 simulated rig (``examples/rig-sphere-sim.toml`` at 300 × 300 px so the capture stays short),
 then reduces it in a fresh subprocess. Memory is the growth of the process's peak resident
-set (``VmHWM``, reset after the imports) from the resident set after the imports, read after each frame: after frame 25 is the
-baseline of the same run, after frame 100 the figure (tracemalloc would slow the reduction
-~10×). Reported:
+set (``VmHWM``, reset after the imports) over the resident set after the imports, read after
+each frame: after frame 25 is the baseline of the same run, after frame 100 the figure
+(tracemalloc would slow the reduction ~10×). Reported:
 
 * ``image_session_peak_mb``: peak memory reducing 100 frames, MB;
 * ``image_session_peak_25_frames_mb``: the same for 25 frames;

@@ -149,6 +149,21 @@ class BinAccumulator:
         new.merge_from(self)
         return new
 
+    def pool_from(self, other: BinAccumulator, pool: Callable[[np.ndarray], np.ndarray]) -> None:
+        """Replace this accumulator's statistics by ``pool`` of ``other``'s (drops copied).
+
+        ``pool`` gets each of ``other``'s arrays shaped ``shape`` (count) or
+        ``(channels,) + shape`` (Σx, Σx²), so it should index bin axes from the end
+        (``x[..., k]``); it returns a new array of the same shape.
+        """
+        self._check_compatible(other)
+        c, shp = self.channels, self.shape
+        self._count[:] = pool(other._count.reshape(shp)).reshape(-1)
+        self._sum[:] = pool(other._sum.reshape(c, *shp)).reshape(c, -1)
+        self._sumsq[:] = pool(other._sumsq.reshape(c, *shp)).reshape(c, -1)
+        self.n_dropped_nan = other.n_dropped_nan
+        self.n_dropped_range = other.n_dropped_range
+
     # ------------------------------------------------------------------ statistics
     @property
     def count(self) -> np.ndarray:
@@ -209,3 +224,55 @@ class BinAccumulator:
         acc._sum[:] = m * n
         acc._sumsq[:] = v * np.maximum(n - 1.0, 0.0) + n * m * m
         return acc
+
+
+class TableStatistics:
+    """Per-bin statistics of a table that keeps its samples in a :class:`BinAccumulator`.
+
+    Mixed into :class:`~acquisition.tables.isotropic.IsotropicTable` and
+    :class:`~acquisition.tables.merl_table.MerlTable`; the host sets ``self._acc``. Arrays have
+    the table's bin shape (plus a trailing RGB axis for values); values are BRDF in sr⁻¹.
+    """
+
+    _acc: BinAccumulator
+
+    @property
+    def backend(self) -> str:
+        """Binning implementation in use, ``"numba"`` or ``"numpy"``."""
+        return self._acc.backend
+
+    @property
+    def count(self) -> np.ndarray:
+        """Samples per bin, int64, the table's shape."""
+        return self._acc.count
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Mean BRDF per bin, float64 ``shape + (3,)`` in sr⁻¹; NaN where unmeasured."""
+        return self._acc.mean()
+
+    @property
+    def variance(self) -> np.ndarray:
+        """Sample variance (ddof 1) of the values in each bin, (sr⁻¹)²; NaN where count < 2."""
+        return self._acc.variance()
+
+    @property
+    def variance_of_mean(self) -> np.ndarray:
+        """Variance of the bin mean, ``variance / count``, (sr⁻¹)²; NaN where count < 2."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.variance / self.count[..., None]
+
+    @property
+    def n_samples(self) -> int:
+        """Samples binned so far."""
+        return int(self._acc._count.sum())
+
+    @property
+    def n_dropped_nan(self) -> int:
+        """Samples dropped because an angle, direction or value was NaN (or ±inf)."""
+        return self._acc.n_dropped_nan
+
+    @property
+    def n_dropped_range(self) -> int:
+        """Samples dropped outside the table (outside the edges, or below the horizon)."""
+        return self._acc.n_dropped_range

@@ -31,7 +31,12 @@ from typing import Any
 import h5py
 import numpy as np
 
-from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
+from acquisition.tables.accumulator import (
+    DROP_NAN,
+    DROP_OUT_OF_RANGE,
+    BinAccumulator,
+    TableStatistics,
+)
 from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
 from acquisition.tables.atomic import atomic_path
 from acquisition.tables.backend import kernels
@@ -60,7 +65,7 @@ def axis_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return idx
 
 
-class IsotropicTable:
+class IsotropicTable(TableStatistics):
     """Streaming isotropic BRDF table binned over (θi, θr, Δφ) in degrees.
 
     Parameters
@@ -97,11 +102,6 @@ class IsotropicTable:
         self.provenance: dict[str, Any] = dict(provenance or {})
         self._acc = BinAccumulator(self.shape, 3, backend=backend)
         self._stored: tuple[np.ndarray, np.ndarray] | None = None  # (mean, variance) as loaded
-
-    @property
-    def backend(self) -> str:
-        """Binning implementation in use, ``"numba"`` or ``"numpy"``."""
-        return self._acc.backend
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -228,33 +228,22 @@ class IsotropicTable:
                 "reciprocity folding needs delta_phi_edges symmetric under Δφ → −Δφ "
                 "(e.g. [0, 180] folded or [-180, 180])"
             )
-        new = self._empty_like()
         shp = self.shape
-        a = self._acc
-        count = a._count.reshape(shp)
-        s = a._sum.reshape(3, *shp)
-        q = a._sumsq.reshape(3, *shp)
-        new._acc._count[:] = (count + count.transpose(1, 0, 2)[:, :, mirror]).reshape(-1)
-        new._acc._sum[:] = (s + s.transpose(0, 2, 1, 3)[..., mirror]).reshape(3, -1)
-        new._acc._sumsq[:] = (q + q.transpose(0, 2, 1, 3)[..., mirror]).reshape(3, -1)
-        # The diagonal bins (θi bin = θr bin, Δφ bin its own mirror) were added to themselves.
-        diag = np.arange(shp[0])
         selfmirror = np.flatnonzero(mirror == np.arange(centers.size))
-        di, dp = np.meshgrid(diag, selfmirror, indexing="ij")
-        nc = new._acc._count.reshape(shp)
-        nc[di, di, dp] = count[di, di, dp]
-        new._acc._sum.reshape(3, *shp)[:, di, di, dp] = s[:, di, di, dp]
-        new._acc._sumsq.reshape(3, *shp)[:, di, di, dp] = q[:, di, di, dp]
-        new._acc.n_dropped_nan = a.n_dropped_nan
-        new._acc.n_dropped_range = a.n_dropped_range
+        di, dp = np.meshgrid(np.arange(shp[0]), selfmirror, indexing="ij")
+
+        def pool(x: np.ndarray) -> np.ndarray:
+            out = x + x.swapaxes(-3, -2)[..., mirror]
+            # The diagonal bins (θi bin = θr bin, Δφ bin its own mirror) were added to themselves.
+            out[..., di, di, dp] = x[..., di, di, dp]
+            return out
+
+        new = self._empty_like()
+        new._acc.pool_from(self._acc, pool)
         return new
 
     # ------------------------------------------------------------------ statistics
-    @property
-    def count(self) -> np.ndarray:
-        """Samples per bin, int64 [Ni, Nr, Nφ]."""
-        return self._acc.count
-
+    # count, variance_of_mean, n_samples, n_dropped_*: see TableStatistics.
     @property
     def mean(self) -> np.ndarray:
         """Mean BRDF per bin, float64 [Ni, Nr, Nφ, 3] in sr⁻¹; NaN where unmeasured."""
@@ -268,27 +257,6 @@ class IsotropicTable:
         if self._stored is not None:
             return self._stored[1].copy()
         return self._acc.variance()
-
-    @property
-    def variance_of_mean(self) -> np.ndarray:
-        """Variance of the bin mean, ``variance / count``, (sr⁻¹)²; NaN where count < 2."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return self.variance / self.count[..., None]
-
-    @property
-    def n_dropped_nan(self) -> int:
-        """Samples dropped because an angle or value was NaN (or ±inf)."""
-        return self._acc.n_dropped_nan
-
-    @property
-    def n_dropped_range(self) -> int:
-        """Samples dropped because they fell outside the edges."""
-        return self._acc.n_dropped_range
-
-    @property
-    def n_samples(self) -> int:
-        """Samples binned so far."""
-        return int(self._acc._count.sum())
 
     # ------------------------------------------------------------------ HDF5
     def save_h5(

@@ -18,7 +18,12 @@ from acquisition.halfdiff import (
     merl_bin_angles,
     merl_bin_edges,
 )
-from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE, BinAccumulator
+from acquisition.tables.accumulator import (
+    DROP_NAN,
+    DROP_OUT_OF_RANGE,
+    BinAccumulator,
+    TableStatistics,
+)
 from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
 
@@ -29,7 +34,7 @@ CHUNK = 1 << 16
 assert (NAN_INDEX, OUT_OF_RANGE_INDEX) == (DROP_NAN, DROP_OUT_OF_RANGE)
 
 
-class MerlTable:
+class MerlTable(TableStatistics):
     """Streaming BRDF table on the MERL grid (θh square-root spaced, θd, φd folded by 180°).
 
     Bins are those of the MERL reference reader (see :mod:`acquisition.halfdiff`); a sample
@@ -54,11 +59,6 @@ class MerlTable:
     ) -> None:
         self.provenance: dict[str, Any] = dict(provenance or {})
         self._acc = BinAccumulator(MERL_SHAPE, 3, backend=backend)
-
-    @property
-    def backend(self) -> str:
-        """Binning implementation in use, ``"numba"`` or ``"numpy"``."""
-        return self._acc.backend
 
     # ------------------------------------------------------------------ accumulation
     def add_vectors(self, wi: np.ndarray, wo: np.ndarray, rgb: np.ndarray) -> int:
@@ -179,58 +179,15 @@ class MerlTable:
         """
         new = MerlTable(self.provenance, backend=self.backend)
         mirror = np.arange(PHI_D_BINS)[::-1]
-        a = self._acc
-        new._acc._count[:] = (
-            a._count.reshape(MERL_SHAPE) + a._count.reshape(MERL_SHAPE)[..., mirror]
-        ).reshape(-1)
-        for src, dst in ((a._sum, new._acc._sum), (a._sumsq, new._acc._sumsq)):
-            s = src.reshape(3, *MERL_SHAPE)
-            dst[:] = (s + s[..., mirror]).reshape(3, -1)
-        new._acc.n_dropped_nan = a.n_dropped_nan
-        new._acc.n_dropped_range = a.n_dropped_range
+        new._acc.pool_from(self._acc, lambda x: x + x[..., mirror])
         return new
 
     # ------------------------------------------------------------------ statistics
-    @property
-    def count(self) -> np.ndarray:
-        """Samples per bin, int64 [90, 90, 180]."""
-        return self._acc.count
-
-    @property
-    def mean(self) -> np.ndarray:
-        """Mean BRDF per bin, float64 [90, 90, 180, 3] in sr⁻¹; NaN where unmeasured."""
-        return self._acc.mean()
-
-    @property
-    def variance(self) -> np.ndarray:
-        """Sample variance (ddof 1) per bin, (sr⁻¹)²; NaN where count < 2."""
-        return self._acc.variance()
-
-    @property
-    def variance_of_mean(self) -> np.ndarray:
-        """Variance of the bin mean, ``variance / count``; NaN where count < 2."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return self._acc.variance() / self._acc.count[..., None]
-
+    # count, mean, variance, variance_of_mean, n_samples, n_dropped_*: see TableStatistics.
     @property
     def measured(self) -> np.ndarray:
         """Bins holding at least one sample, bool [90, 90, 180]."""
         return self._acc.count > 0
-
-    @property
-    def n_samples(self) -> int:
-        """Samples binned so far."""
-        return int(self._acc._count.sum())
-
-    @property
-    def n_dropped_nan(self) -> int:
-        """Samples dropped for a NaN direction or value."""
-        return self._acc.n_dropped_nan
-
-    @property
-    def n_dropped_range(self) -> int:
-        """Samples dropped below the horizon or outside θh, θd ∈ [0°, 90°]."""
-        return self._acc.n_dropped_range
 
     @staticmethod
     def edges() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

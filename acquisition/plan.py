@@ -67,6 +67,10 @@ class CaptureSettings:
     iso: int | None = None
     reference_every: int = 0
     """Capture the white reference every N poses as well as first and last (0 = first/last)."""
+    hdr: bool = False
+    """Bracket every pose automatically (:class:`acquisition.steps.ExposeHDR`)."""
+    target_snr: float = 20.0
+    """HDR: SNR the darkest valid ROI superpixel of each pose's merge must reach."""
 
 
 @dataclass(frozen=True)
@@ -206,7 +210,7 @@ def load_plan(path: str | Path) -> PlanSpec:
     cons = top.section("constraints", {})
     cons.check_keys({"shadow_cone_deg", "max_elevation_deg"})
     cap = top.section("capture", {})
-    cap.check_keys({"exposure_s", "iso", "reference_every"})
+    cap.check_keys({"exposure_s", "iso", "reference_every", "hdr", "target_snr"})
     if not poses:
         raise sampling.error(None, "expands to no pose: check the ranges")
     return PlanSpec(
@@ -220,6 +224,8 @@ def load_plan(path: str | Path) -> PlanSpec:
             exposure_s=cap.number("exposure_s", None, min=1e-6),
             iso=cap.integer("iso", None, min=1),
             reference_every=cap.integer("reference_every", 0, min=0),
+            hdr=cap.get("hdr", bool, False),
+            target_snr=cap.number("target_snr", 20.0, min=1.0),
         ),
         shadow_cone_deg=cons.number("shadow_cone_deg", None, min=0, max=90),
         max_elevation_deg=cons.number("max_elevation_deg", None, min=1, max=90),

@@ -15,6 +15,12 @@ frame is linearized with the bundle's master dark for its exposure and ISO, flat
 bad-pixel map and noise model; the noise model's variance of each ROI mean (and of the
 interpolated reference) is propagated to every sample, and :attr:`Reduction.predicted_variance`
 holds the predicted variance of each bin's mean.
+
+An HDR session's bracket (journal rows noted ``hdr=<first step>:<k>``) is one sample: its
+frames are linearized with variances (the bundle's noise model, else a simulated camera's
+nominal one), merged per superpixel with inverse-variance weights (clipped samples weigh 0,
+:func:`calibration.hdr.merge`), and the ROI mean is taken of the merge. Only brackets the
+journal records as complete are used.
 """
 
 from __future__ import annotations
@@ -28,13 +34,15 @@ from pathlib import Path
 import numpy as np
 
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
-from calibration.linearize import linearize, roi_mean
+from calibration.hdr import merge
+from calibration.linearize import LinearImage, linearize, roi_mean
 from calibration.raw import load_raw
 from drivers.errors import SessionError
 
 from .journal import StepRecord
 from .kinematics import Pose
-from .session import POSE, REFERENCE, SessionFolder
+from .rig import RigConfig
+from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
 from .tables import IsotropicTable
 
 
@@ -90,6 +98,34 @@ def frame_signal(
     image = linearize(frame) if bundle is None else bundle.linearize(frame)
     x0, y0, x1, y1 = roi
     mean, var, n = roi_mean(image, (x0, y0, x1 - x0, y1 - y0))
+    return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
+
+
+def linearize_with_variance(path: Path, rig: RigConfig,
+                            bundle: CalibrationBundle | None = None) -> LinearImage:
+    """Linearize a frame with the bundle's corrections and a variance per superpixel (the
+    bundle's noise model, else :func:`acquisition.session.camera_noise_model`)."""
+    frame = load_raw(path)
+    iso = float(frame.iso or rig.camera.iso)
+    if bundle is not None and bundle.noise_for(iso) is not None:
+        return bundle.linearize(frame)
+    noise = camera_noise_model(rig, iso, None)
+    if bundle is None:
+        return linearize(frame, noise=noise)
+    dark = bundle.dark_for(frame.exposure_s, iso) if frame.exposure_s else None
+    return linearize(frame, dark=dark, flat=bundle.flat, bad_pixels=bundle.bad_pixels,
+                     noise=noise)
+
+
+def bracket_signal(
+    paths: list[Path], rig: RigConfig, step: int, bundle: CalibrationBundle | None = None,
+) -> FrameSignal:
+    """The ROI mean (DN/s) and its variance of an HDR bracket's inverse-variance merge."""
+    images = [linearize_with_variance(p, rig, bundle) for p in paths]
+    iso = float(images[0].iso or rig.camera.iso)
+    merged = merge(images, camera_noise_model(rig, iso, bundle))
+    x0, y0, x1, y1 = rig.camera.roi
+    mean, var, n = roi_mean(merged, (x0, y0, x1 - x0, y1 - y0))
     return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
 
 
@@ -162,6 +198,8 @@ def reduce_session(
     kin = rig.kinematics()
     with folder.journal() as journal:
         records = [r for r in journal.steps() if r.status == "done"]
+        groups = {g for g in (hdr_group(r.note) for r in records) if g is not None}
+        complete = {g for g in groups if journal.meta(f"{HDR_DONE_META}{g}") is not None}
     if not records:
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
 
@@ -212,9 +250,26 @@ def reduce_session(
         cal.noise_for(float(r.iso)) is not None for r in records if getattr(r, "iso", None))
     var_sum = np.zeros((int(np.prod(table.shape)), 3)) if with_noise else None
     var_n = np.zeros(int(np.prod(table.shape))) if with_noise else None
-    poses = [r for r in records if r.kind == POSE]
+    # One sample per plain frame, and per complete HDR bracket (its first row stands for it).
+    brackets: dict[int, list[StepRecord]] = {}
+    poses = []
+    for r in records:
+        g = hdr_group(r.note) if r.kind == POSE else None
+        if g is None:
+            if r.kind == POSE:
+                poses.append(r)
+        elif g in complete:
+            if g not in brackets:
+                poses.append(r)
+            brackets.setdefault(g, []).append(r)
+
     for k, rec in enumerate(poses):
-        fs = signal(rec)
+        g = hdr_group(rec.note)
+        if g is None:
+            fs = signal(rec)
+        else:
+            fs = bracket_signal([folder.frames_dir / str(r.frame) for r in brackets[g]],
+                                rig, rec.step, cal)
         cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
         pose = binning_pose(rec)
         if fs.n_valid == 0 or cos_i <= 0:

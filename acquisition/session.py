@@ -30,6 +30,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from calibration.hdr import BracketPolicy, bracket
+from calibration.linearize import NoiseModel
 from drivers.errors import GonioError, HardwareError, SafetyStop, SessionError, StorageError
 
 from .journal import Journal, StepRecord
@@ -46,9 +48,11 @@ from .steps import (
     Custom,
     Dark,
     Expose,
+    ExposeHDR,
     Move,
     Reference,
     Step,
+    capture_steps,
     sweep_steps,
 )
 from .storage import TMP_SUFFIX, atomic_target, sha256_file
@@ -62,6 +66,44 @@ INFO_FILE = "session.json"
 JOURNAL_FILE = "journal.sqlite"
 FRAMES_DIR = "frames"
 CALIBRATION_DIR = "calibration"
+HDR_SWEEP_META = "hdr_sweep"
+"""Journal meta of an HDR capture session: its planned poses [θi, θr, Δφ, joints] (deg)."""
+HDR_DONE_META = "hdr_done:"
+"""Journal meta key prefix: ``hdr_done:<first step>`` → frames of a completed bracket."""
+HDR_NOTE = "hdr="
+"""Journal note prefix of an HDR bracket's frames: ``hdr=<first step>:<index>``."""
+
+
+def hdr_group(note: str | None) -> int | None:
+    """The first step of the HDR bracket a journal row belongs to (None: not an HDR frame)."""
+    if not note or not note.startswith(HDR_NOTE):
+        return None
+    return int(note[len(HDR_NOTE):].split(":", 1)[0])
+
+
+def camera_noise_model(rig: RigConfig, iso: float, bundle: Any = None) -> NoiseModel:
+    """The noise model for HDR weights at ``iso``: the calibration bundle's, else (simulated
+    camera only) the nominal one of the rig's ``[camera.sensor]``.
+
+    Raises
+    ------
+    SessionError
+        A real camera without a measured noise model.
+    """
+    noise = bundle.noise_for(iso) if bundle is not None else None
+    if noise is not None:
+        return noise
+    if rig.camera.driver != "simulated":
+        raise SessionError(
+            f"HDR on rig '{rig.name}' needs a noise model at ISO {iso:g}: run "
+            "`gonio calibrate noise` and give the bundle with --calibration"
+        )
+    from simulators.sensor import SensorModel
+
+    sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
+    gain = sensor.gain_at(iso)
+    read = math.sqrt((sensor.read_noise_e / gain) ** 2 + sensor.black_noise_dn**2 + 1 / 12)
+    return NoiseModel(gain, read, iso)
 
 
 class CaptureDevices(Protocol):
@@ -209,7 +251,9 @@ def create_session(
     """Lay out a new session folder; refuses an existing one.
 
     Unless ``scripted``, the plan file's sweep is planned and every step recorded in the
-    journal now; a scripted session's steps are journaled as its script reaches them.
+    journal now; a scripted session's steps are journaled as its script reaches them. With
+    ``[capture] hdr = true`` the planned poses go to the journal's meta instead and each
+    bracket's frames are journaled as they are taken.
     """
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -221,6 +265,7 @@ def create_session(
     planner = Planner.for_plan(rig, plan)
     ref_pose, ref_joints = reference_geometry(rig, planner)
     sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
+    hdr = sweep is not None and plan.capture.hdr
     if sweep is not None and not sweep.steps:
         raise SessionError(f"plan {plan_path} leaves no measurable pose on this rig: widen its ranges")
     out.mkdir(parents=True, exist_ok=True)
@@ -233,7 +278,10 @@ def create_session(
                            sweep.estimated_s if sweep else 0.0, cal, scripted)
         (out / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
         with Journal(out / JOURNAL_FILE) as journal:
-            if sweep is not None:
+            if hdr and sweep is not None:  # frames per pose known only once bracketed
+                journal.set_meta(HDR_SWEEP_META, [[*p.pose.as_tuple(), dict(p.joints)]
+                                                  for p in sweep.steps])
+            elif sweep is not None:
                 journal.plan_steps(
                     schedule_steps(sweep, ref_joints, ref_pose, plan.capture.reference_every)
                 )
@@ -336,6 +384,7 @@ class SessionEngine:
         self.handlers: dict[type, Handler] = {
             Move: self._move,  # type: ignore[dict-item]
             Expose: self._expose,  # type: ignore[dict-item]
+            ExposeHDR: self._expose_hdr,  # type: ignore[dict-item]
             Dark: self._dark,  # type: ignore[dict-item]
             Reference: self._reference,  # type: ignore[dict-item]
             Checkpoint: self._checkpoint,  # type: ignore[dict-item]
@@ -499,6 +548,76 @@ class SessionEngine:
             self._go(joints, "sample")
             self._shoot(rec, base * factor, iso)
 
+    def _expose_hdr(self, step: ExposeHDR) -> None:
+        pose, joints = self._require_target("ExposeHDR")
+        assert self._journal is not None
+        base = step.exposure_s or self.plan.capture.exposure_s or self.rig.camera.exposure_s
+        iso = step.iso or self.plan.capture.iso or self.rig.camera.iso
+        first = self._next
+        group = f"{HDR_NOTE}{first}"
+        with self.devices.host_work():
+            complete = self._journal.meta(f"{HDR_DONE_META}{first}")
+        if complete is not None:  # a finished bracket: retake only frames sent back for redo
+            for k in range(int(complete)):
+                rec = self._claim(POSE, pose, joints, f"{group}:{k}")
+                if rec is not None:
+                    self._go(joints, "sample")
+                    self._shoot(rec, rec.exposure_s or base, iso, retake_clipped=False)
+            return
+        # Not recorded as complete: (re)shoot the whole bracket, reusing any rows a
+        # bracket interrupted part-way left behind.
+        with self.devices.host_work():
+            cal = self._bundle()
+            noise = camera_noise_model(self.rig, iso, cal)
+        taken: list[float] = []
+
+        def capture(exposure_s: float) -> Path:
+            rec = self._claim_again(POSE, pose, joints, f"{group}:{len(taken)}")
+            taken.append(exposure_s)
+            self._go(joints, "sample")
+            return self._shoot(rec, exposure_s, iso, retake_clipped=False)
+
+        x0, y0, x1, y1 = self.rig.camera.roi
+        policy = BracketPolicy(target_snr=step.target_snr or self.plan.capture.target_snr,
+                               step=step.step, max_frames=step.max_frames)
+        with self.devices.host_work():
+            extra = {} if cal is None else {"dark_for": cal.dark_for, "flat": cal.flat,
+                                            "bad_pixels": cal.bad_pixels}
+        bracket(capture, (x0, y0, x1 - x0, y1 - y0), noise, start_exposure_s=base,
+                policy=policy, **extra)
+        while True:  # rows of an earlier, longer attempt: fill them (more frames only help)
+            with self.devices.host_work():
+                stale = self._journal.record(self._next)
+            if stale is None or hdr_group(stale.note) != first:
+                break
+            capture(stale.exposure_s or max(taken))
+        with self.devices.host_work():
+            self._journal.set_meta(f"{HDR_DONE_META}{first}", len(taken))
+
+    def _bundle(self) -> Any:
+        """The session's calibration bundle (cached), or None."""
+        if not hasattr(self, "_cal"):
+            from calibration.bundle import SCALARS_FILE, CalibrationBundle
+
+            copied = self.folder.calibration
+            self._cal = (CalibrationBundle.open(copied) if copied is not None
+                         and (Path(copied) / SCALARS_FILE).is_file() else None)
+        return self._cal
+
+    def _claim_again(
+        self, kind: str, pose: Pose, joints: Mapping[str, float], note: str
+    ) -> StepRecord:
+        """Like :meth:`_claim`, but a done row is returned too (to be shot again)."""
+        assert self._journal is not None
+        n = self._next
+        self._next += 1
+        with self.devices.host_work():
+            rec = self._match(n, kind, pose, joints, note) or self._journal.record(n)
+        assert rec is not None
+        if rec.status == "done":
+            self._done -= 1
+        return rec
+
     def _dark(self, step: Dark) -> None:
         pose, joints = self._require_target("Dark")
         rec = self._claim(DARK, pose, joints)
@@ -567,7 +686,8 @@ class SessionEngine:
             self._at = joints
 
     def _shoot(self, rec: StepRecord, exposure_s: float, iso: int, *,
-               retake_clipped: bool = True) -> None:
+               retake_clipped: bool = True) -> Path:
+        """Expose ``rec``'s frame (retaking a clipped one shorter) and journal it as done."""
         assert self._journal is not None
         self._current = rec.step
         with self.devices.host_work():
@@ -594,6 +714,7 @@ class SessionEngine:
                 exposure_s=exposure_s, iso=iso, device_time_s=self.devices.device_time_s(),
             )
             self._completed(rec.step, final)
+        return final
 
     def _capture(self, tmp: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
         try:
@@ -660,6 +781,16 @@ class CaptureEngine:
             )
         with self.folder.journal() as journal:
             records = list(journal.steps())
+            hdr_sweep = journal.meta(HDR_SWEEP_META)
+        if hdr_sweep is not None:
+            eng = self.engine
+            every = eng.plan.capture.reference_every
+            poses = [(Pose(ti, tr, dp), joints) for ti, tr, dp, joints in hdr_sweep]
+            refs = 2 + ((len(poses) - 1) // every if every else 0)
+            steps = capture_steps(poses, reference_every=every,
+                                  reference=Reference(eng.ref_pose, eng.ref_joints),
+                                  expose=ExposeHDR())
+            return eng.run(steps, total=len(poses) + refs)  # a lower bound: ≥ 1 frame per pose
         return self.engine.run(steps_from_journal(records))
 
 

@@ -17,10 +17,12 @@ from __future__ import annotations
 import logging
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,14 +40,15 @@ from drivers.dynamixel.latency import SYSFS_USB_SERIAL, latency_warning
 from drivers.errors import ConfigError, HardwareError
 from drivers.gphoto2 import GPhoto2Camera
 from simulators.camera import SimCamera
-from simulators.clock import SimClock
+from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
+from simulators.dynamixel.protocol import Packet
 from simulators.materials import Material
 from simulators.sensor import SensorModel
 
 from .kinematics import Pose
 from .planner import Planner
-from .rig import AxisConfig, RigConfig
+from .rig import MOTION_POLL_S, AxisConfig, RigConfig
 from .simscene import SampleHolder, make_scene, white_material
 
 log = logging.getLogger(__name__)
@@ -222,6 +225,53 @@ class HealthGuard:
                 )
 
 
+# ---------------------------------------------------------------------- clock
+def make_clock(rig: RigConfig) -> SimClock:
+    """The device clock of a simulated rig: ``[simulation] clock`` (default ``"stepped"``).
+
+    A :class:`SteppedClock` moves only when a device waits or spends time on purpose, and the
+    servo simulators then charge each packet its time on the wire (:class:`WireTimed`),
+    so a run's rig time is motion + polling + wire time + settle + exposure, independent of the
+    host's load. ``"scaled"`` runs at ``time_scale`` × host time (external clients).
+    """
+    return SteppedClock() if rig.sim_clock == "stepped" else SimClock(rig.time_scale)
+
+
+class WireTimed:
+    """Mixin for a :class:`SimServoBus`: its traffic costs its time on the wire on the clock.
+
+    Each instruction advances the clock by its bytes at the bus baud rate (10 bits per byte)
+    before the servos act on it, and each status reply by the servo's Return Delay Time plus
+    its bytes, before the reply is written to the pty; replies are not delayed in host time.
+    Sync writes thus cost their wire time too, like on a real half-duplex bus. Meant for a
+    :class:`SteppedClock` (on a scaled clock use ``SimServoBus(wire_time=True)``).
+    """
+
+    baud: int
+    clock: SimClock
+    servos: dict[int, Any]
+
+    def _schedule(self, pkt: Packet, now: float, pending: deque[tuple[float, bytes]]) -> None:
+        byte_s = 10.0 / self.baud
+        self.clock.advance((10 + len(pkt.params)) * byte_s)
+        before = len(pending)
+        super()._schedule(pkt, now, pending)  # type: ignore[misc]
+        spent = 0.0
+        for k in range(before, len(pending)):
+            raw = pending[k][1]
+            servo = self.servos.get(raw[4]) if len(raw) > 4 else None
+            spent += len(raw) * byte_s + (servo.return_delay_s if servo is not None else 0.0)
+        if spent:
+            self.clock.advance(spent)
+
+
+def sim_bus_class(clock: SimClock) -> type[SimServoBus]:
+    """:class:`SimServoBus` (looked up when called), :class:`WireTimed` on a stepped clock."""
+    if isinstance(clock, SteppedClock):
+        return type("WireTimedSimBus", (WireTimed, SimServoBus), {})
+    return SimServoBus
+
+
 # ---------------------------------------------------------------------- servos
 @dataclass
 class ServoRig:
@@ -292,7 +342,8 @@ def start_simulated_buses(
             if not bus_cfg.simulated:
                 continue
             on_bus = [a for a in rig.axes.values() if a.bus == name]
-            sim = SimServoBus(
+            kind = sim_bus_class(clock)
+            sim = kind(
                 [a.servo_id for a in on_bus], baud=bus_cfg.baud, clock=clock,
                 faults=list(sim_faults), seed=seed, strict_baud=True,
                 positions={a.servo_id: make_axis(a).deg_to_ticks(park[a.name]) for a in on_bus},
@@ -347,14 +398,14 @@ def open_servos(
     Parameters
     ----------
     clock:
-        The device clock; a new :class:`SimClock` at the rig's time scale when a bus is
-        simulated and none is given.
+        The device clock; the rig's own (:func:`make_clock`) when a bus is simulated and none
+        is given. On a :class:`SteppedClock` move timeouts are counted on it too.
     prepare:
         Write every axis' motion profile and switch torque on (what a capture needs). A
         console leaves a real rig as it is (a servo in hardware error must stay readable).
     """
     if clock is None and any(b.simulated for b in rig.buses.values()):
-        clock = SimClock(rig.time_scale)
+        clock = make_clock(rig)
     axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}
     with ExitStack() as stack:
         sims = {}
@@ -383,8 +434,11 @@ def open_servos(
             full = {**motion.positions_deg(rest), **targets} if rest else dict(targets)
             planner.check_joints(full)
 
-        timing = {"sleep": clock.sleep} if clock is not None else {}
-        motion = MotionController(axes.values(), by_axis, guard=guard, **timing)
+        timing: dict[str, Any] = {"sleep": clock.sleep} if clock is not None else {}
+        if isinstance(clock, SteppedClock):  # host time says nothing about a stepped rig
+            timing["monotonic"] = clock.now
+        motion = MotionController(axes.values(), by_axis, guard=guard, poll_s=MOTION_POLL_S,
+                                  **timing)
         health = HealthGuard(
             axes, by_axis, health_limits,
             **({"now": clock.now, "sleep": clock.sleep} if clock is not None else {}),
@@ -504,7 +558,7 @@ def open_devices(
     """Open (and for simulated devices, start) everything the rig file declares."""
     check_camera_driver(rig)
     any_sim = any(b.simulated for b in rig.buses.values()) or rig.camera.driver == "simulated"
-    clock = SimClock(rig.time_scale) if any_sim else None
+    clock = make_clock(rig) if any_sim else None
     with open_servos(rig, planner, clock=clock, sim_faults=sim_faults, seed=seed,
                      health_limits=health_limits) as servos:
         if rig.camera.driver == "gphoto2":

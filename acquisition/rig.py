@@ -7,6 +7,7 @@ is opened. Opening devices (real or simulated) is :mod:`acquisition.devices`' jo
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,9 @@ from .kinematics import KINEMATICS, Kinematics
 from .kinematics.lightstage import LightStage
 
 RIG_FORMAT_VERSION = 1
+
+SIM_CLOCKS = ("stepped", "scaled")
+"""Values of ``[simulation] clock`` (see :class:`RigConfig.sim_clock`)."""
 
 XM430_POSITION_TICKS = 4096
 """Ticks per revolution of an X-series servo in position mode."""
@@ -164,6 +168,7 @@ class RigConfig:
     camera: CameraConfig
     white_reference: WhiteReference
     time_scale: float
+    """Simulated s per host s of a ``"scaled"`` simulation clock."""
     raw: dict[str, Any]
     arms: ArmsConfig | None = None
     footprint: FootprintConfig | None = None
@@ -171,6 +176,9 @@ class RigConfig:
     bus_cycle_s: float = 0.03
     """Per-move bus time (s): safety read, goal write, and the polls that confirm arrival."""
     sample: SampleConfig = field(default_factory=SampleConfig)
+    sim_clock: str = "stepped"
+    """``[simulation] clock``: ``"stepped"`` (discrete-event: simulated time is the hardware
+    timeline, whatever the host's load) or ``"scaled"`` (``time_scale`` × host time)."""
 
     @property
     def simulated(self) -> bool:
@@ -202,6 +210,9 @@ def load_rig(path: str | Path) -> RigConfig:
 
     sim = top.section("simulation", {})
     time_scale = sim.number("time_scale", 1.0, min=1e-3)
+    sim_clock = sim.get("clock", str, "stepped")
+    if sim_clock not in SIM_CLOCKS:
+        raise sim.error("clock", f"is '{sim_clock}': use one of {', '.join(SIM_CLOCKS)}")
 
     fixed = kin == LightStage.name  # a light stage need not have any servo
     buses_sec = top.section("buses", {}) if fixed else top.section("buses")
@@ -316,20 +327,65 @@ def load_rig(path: str | Path) -> RigConfig:
         camera=camera,
         white_reference=white,
         time_scale=time_scale,
+        sim_clock=sim_clock,
         raw=top.data,
         arms=_parse_arms(top.section("arms", {}), light_distance, camera_distance),
         footprint=footprint,
         light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
-        bus_cycle_s=timing.number("bus_cycle_s", DEFAULT_BUS_CYCLE_S, min=0.0),
+        bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes), min=0.0),
         sample=sample_cfg,
     )
 
 
 DEFAULT_BUS_CYCLE_S = 0.03
-"""Per-move bus time (s) when the rig file gives none: the safety read and goal write before
-a move and, after the profile ends, on average half a control cycle (10 ms poll plus a sync
-read) until a poll confirms arrival, plus that read: 20–35 ms on the simulated rig at time_scale
-1 (host load dependent); a sync read of three servos alone takes ≈ 14 ms on a 57600-baud wire."""
+"""Per-move bus time (s) of a rig without servo buses (a light stage)."""
+MOTION_POLL_S = 0.01
+"""Pause (s) between the motion controller's control cycles (``acquisition.devices`` uses it)."""
+RETURN_DELAY_S = 500e-6
+"""An X-series servo's factory Return Delay Time (250 × 2 µs) before each status reply."""
+_READ_BYTES = {"status": 84, "safety": 7, "motion": 20}
+"""Bytes per servo of the driver's sync reads: health status (64–147), torque and hardware
+error (64–70), goal/moving/velocity/position (116–135)."""
+
+
+def sync_read_s(n_servos: int, size: int, baud: int,
+                return_delay_s: float = RETURN_DELAY_S) -> tuple[float, float]:
+    """Wire time (s) of one Protocol 2.0 SYNC_READ of ``size`` bytes from ``n_servos``.
+
+    Returns ``(instruction_s, replies_s)``: the instruction (14 + n bytes) and the n status
+    packets (11 + size bytes each, after each servo's return delay), at 10 bits per byte.
+    """
+    byte_s = 10.0 / baud
+    return ((14 + n_servos) * byte_s,
+            n_servos * ((11 + size) * byte_s + return_delay_s))
+
+
+def move_bus_time_s(buses: Mapping[str, BusConfig], axes: Mapping[str, AxisConfig],
+                    poll_s: float = MOTION_POLL_S,
+                    return_delay_s: float = RETURN_DELAY_S) -> float:
+    """Expected bus time (s) one capture move adds to its motion profile.
+
+    Per bus, before the move: the health guard's status read, the motion controller's safety
+    read and its goal SYNC_WRITE (14 + 5n bytes). After the profile ends, the controller's
+    polls (one motion read per bus, then ``poll_s``) confirm arrival at the first poll that
+    samples the axes at rest: on average half a control cycle later, plus that poll's replies.
+    With no servo bus, :data:`DEFAULT_BUS_CYCLE_S`.
+    """
+    counts: dict[str, int] = {}
+    for a in axes.values():
+        counts[a.bus] = counts.get(a.bus, 0) + 1
+    if not counts:
+        return DEFAULT_BUS_CYCLE_S
+    before = cycle = replies = 0.0
+    for name, n in counts.items():
+        baud = buses[name].baud
+        for kind in ("status", "safety"):
+            before += sum(sync_read_s(n, _READ_BYTES[kind], baud, return_delay_s))
+        before += (14 + 5 * n) * 10.0 / baud
+        instruction, reply = sync_read_s(n, _READ_BYTES["motion"], baud, return_delay_s)
+        cycle += instruction + reply
+        replies += reply
+    return before + (poll_s + cycle) / 2.0 + replies
 DEFAULT_SAMPLE_SIZE_M = 0.05
 """Sample edge length (m) when the rig file gives none: a 5 cm coupon."""
 DEFAULT_SPOT_DIAMETER_M = 0.004

@@ -1,9 +1,17 @@
-"""The simulated clock shared by every simulated device of one rig.
+"""The simulated clocks shared by every simulated device of one rig.
 
-Simulated time runs ``time_scale`` times faster than the host's monotonic clock, so a sweep
-that takes an hour on hardware takes minutes on the simulator. Devices may also jump it
-forward (an exposure of 2 s) and freeze it while they compute (rendering a frame), so that
-host-side work does not show up as simulated time.
+Two kinds, one interface (``now()``, ``advance(s)``, ``sleep(s)``, ``frozen()``,
+``time_scale``):
+
+* :class:`SimClock` runs ``time_scale`` times faster than the host's monotonic clock, so a
+  simulator that external programs talk to (``gonio sim servos``, an operator's console) moves
+  in something like real time. Devices may jump it forward (an exposure of 2 s) and freeze it
+  while they compute (rendering a frame), but host work nobody froze shows up as simulated
+  time, scaled up.
+* :class:`SteppedClock` is discrete-event: time moves only when a device waits (``sleep``) or
+  spends time on purpose (``advance``: an exposure, a packet's time on the wire), never while
+  the host computes. A run's simulated time is then the hardware timeline (motion, polling,
+  wire time, settle, exposure) whatever the host's load, and ``sleep`` costs no host time.
 """
 
 from __future__ import annotations
@@ -74,3 +82,42 @@ class SimClock:
         """Sleep until ``sim_seconds`` of simulated time have passed."""
         if sim_seconds > 0:
             time.sleep(sim_seconds / self._time_scale)
+
+
+class SteppedClock(SimClock):
+    """Discrete-event simulated time: moves only in ``sleep`` and ``advance``.
+
+    Drop-in for :class:`SimClock`: ``sleep(s)`` advances the clock by ``s`` and returns at
+    once (after yielding the GIL, so simulator threads run), ``frozen()`` is a no-op (nothing
+    else moves the clock) and ``time_scale`` is reported as 1.0 for compatibility (the real
+    ratio is unbounded). Thread-safe: concurrent advances add up.
+    """
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        super().__init__(1.0)
+        if start_s < 0:
+            raise ValueError(f"a clock cannot start before 0 s (got {start_s} s)")
+        self._t = float(start_s)
+
+    def now(self) -> float:
+        """Simulated seconds since the clock was made (plus ``start_s``)."""
+        with self._lock:
+            return self._t
+
+    def advance(self, seconds: float) -> None:
+        """Move simulated time forward by ``seconds`` (≥ 0)."""
+        if seconds < 0:
+            raise ValueError(f"cannot advance the clock by a negative time ({seconds} s)")
+        with self._lock:
+            self._t += seconds
+
+    def sleep(self, sim_seconds: float) -> None:
+        """Advance by ``sim_seconds`` (nothing for ≤ 0) and yield the GIL once."""
+        if sim_seconds > 0:
+            self.advance(sim_seconds)
+        time.sleep(0)
+
+    @contextmanager
+    def frozen(self) -> Iterator[None]:
+        """No-op: host work never moves a stepped clock."""
+        yield

@@ -145,6 +145,7 @@ def test_overload_stops_names_axis_and_resume_completes(
     assert "gonio reboot camera_theta" in errors[0]
     # Every axis stands still: goal = present, nothing moving; only servo 2 lost torque.
     (bus,) = sims
+    bus.clock.sleep(1.0)  # a stepped clock stands still after the run: let the brakes finish
     for sid, servo in bus.servos.items():
         _, raw = servo.read(64, 84)
         goal = int.from_bytes(raw[116 - 64:120 - 64], "little", signed=True)
@@ -194,7 +195,8 @@ def test_ctrl_c_during_capture_leaves_it_resumable(
 
 
 def test_ctrl_c_stops_a_console_move_midway(tmp_path: Path, sims: list[SimServoBus]) -> None:
-    rig = rig_copy(tmp_path, **{"time_scale = 25.0": "time_scale = 1.0"})
+    # Real time (a scaled clock), so that the presser thread can catch the move midway.
+    rig = rig_copy(tmp_path, **{"time_scale = 25.0": 'time_scale = 1.0\nclock = "scaled"'})
     with open_console(rig) as con:
         (bus,) = sims
         servo = bus.servos[3]  # camera_phi

@@ -7,7 +7,7 @@ confirms each light state by timing. The simulated camera renders the LEDs the s
 widgets are *outputting* at the moment the exposure starts (``sim_state_at``), with each
 LED's true intensity and colour, so a light state that was not yet on shows in the frame.
 
-Simulated time is event-stepped (:class:`SteppedClock`): it passes only in the devices' own
+Simulated time is event-stepped (:class:`simulators.clock.SteppedClock`): it passes only in the devices' own
 waits (the DMX refresh limit, the lights' settle, the exposure), never while the host computes,
 so a run's rig time is the hardware timeline whatever the host's load. A simulated widget
 stamps each frame with the clock when its thread parses it; :class:`SyncedSimWidget` waits
@@ -17,7 +17,6 @@ for that parse after every write, before anything can advance the clock.
 from __future__ import annotations
 
 import contextlib
-import threading
 from collections.abc import Iterator, Mapping
 from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from pathlib import Path
@@ -28,7 +27,7 @@ from drivers.dmx import DmxWidget
 from drivers.errors import ConfigError, HardwareError
 from drivers.lights import Fixture, Level, LightController, LightState
 from simulators.camera import SimCamera
-from simulators.clock import SimClock
+from simulators.clock import SimClock, SteppedClock
 from simulators.dmx import SimDmxWidget
 from simulators.materials import Material
 from simulators.sensor import SensorModel
@@ -37,37 +36,6 @@ from ..rig import RigConfig
 from ..simscene import SampleHolder, white_material
 from .config import SIM_PORT, StageConfig, stage_config
 from .render import LightImages
-
-
-class SteppedClock(SimClock):
-    """A simulated clock that moves only when a device waits (``sleep``) or exposes (``advance``).
-
-    Drop-in for :class:`simulators.clock.SimClock` (``now``, ``sleep``, ``advance``, ``frozen``);
-    ``sleep`` returns at once. ``time_scale`` is infinite in spirit and reported as 1.
-    """
-
-    def __init__(self) -> None:
-        super().__init__(1.0)
-        self._t = 0.0
-        self._step_lock = threading.Lock()
-
-    def now(self) -> float:
-        with self._step_lock:
-            return self._t
-
-    def advance(self, seconds: float) -> None:
-        if seconds < 0:
-            raise ValueError(f"cannot advance the clock by a negative time ({seconds} s)")
-        with self._step_lock:
-            self._t += seconds
-
-    def sleep(self, sim_seconds: float) -> None:
-        if sim_seconds > 0:
-            self.advance(sim_seconds)
-
-    @contextmanager
-    def frozen(self) -> Iterator[None]:
-        yield
 
 
 class SyncedSimWidget:

@@ -754,4 +754,4 @@ def test_robotis_example_runs_unchanged(name, tmp_path):
     with SimServoBus([1, 2], baud=57600, clock=SimClock(20.0)) as sim:
         out = run_example(source, sim.port, tmp_path, presses=3)
     assert "Succeeded to open the port" in out and "Failed" not in out
-    assert "[RxPacketError]" not in out
+    assert "[RxPacketError]" not in out and "[TxRxResult]" not in out

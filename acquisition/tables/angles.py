@@ -1,4 +1,4 @@
-"""Δφ normalisation helpers (degrees)."""
+"""Angle-input helpers: broadcasting to flat float64, Δφ normalisation (degrees)."""
 
 from __future__ import annotations
 
@@ -19,3 +19,8 @@ def wrap_delta_phi(delta_phi_deg: np.ndarray | float, start_deg: float = -180.0)
     """Wrap Δφ (deg) into [start, start + 360) without folding."""
     d = np.asarray(delta_phi_deg, dtype=np.float64)
     return start_deg + np.mod(d - start_deg, 360.0)
+
+
+def as_flat_float64(*values: np.ndarray | float) -> tuple[np.ndarray, ...]:
+    """Broadcast the inputs against each other; each comes back as a 1-D float64 array."""
+    return tuple(np.asarray(v, dtype=np.float64).reshape(-1) for v in np.broadcast_arrays(*values))

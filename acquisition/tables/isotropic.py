@@ -37,7 +37,7 @@ from acquisition.tables.accumulator import (
     BinAccumulator,
     TableStatistics,
 )
-from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi
+from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.atomic import atomic_path
 from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
@@ -133,10 +133,7 @@ class IsotropicTable(TableStatistics):
         delta_phi_deg: np.ndarray | float,
     ) -> np.ndarray:
         """Flat C-order bin index per sample; −1 outside the table, −2 for a NaN angle."""
-        ti, tr, dp = (
-            np.asarray(a, dtype=np.float64).reshape(-1)
-            for a in np.broadcast_arrays(theta_i_deg, theta_r_deg, delta_phi_deg)
-        )
+        ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)
         ir = axis_index(tr, self.theta_r_edges)
@@ -162,38 +159,20 @@ class IsotropicTable(TableStatistics):
         (:attr:`n_dropped_range`, :attr:`n_dropped_nan`). Returns the number kept.
         """
         rgb = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
-        if self.backend == "numba":
-            return self._add_compiled(theta_i_deg, theta_r_deg, delta_phi_deg, rgb)
-        flat = self.flat_index(theta_i_deg, theta_r_deg, delta_phi_deg)
-        if flat.size != rgb.shape[0]:
-            if flat.size == 1:
-                flat = np.repeat(flat, rgb.shape[0])
-            else:
-                raise ValueError(f"{flat.size} angle samples but {rgb.shape[0]} RGB samples")
-        self._stored = None
-        return self._acc.add_flat(flat, rgb)
-
-    def _add_compiled(
-        self,
-        theta_i_deg: np.ndarray | float,
-        theta_r_deg: np.ndarray | float,
-        delta_phi_deg: np.ndarray | float,
-        rgb: np.ndarray,
-    ) -> int:
-        ti, tr, dp = np.broadcast_arrays(
-            *(np.asarray(a, dtype=np.float64) for a in (theta_i_deg, theta_r_deg, delta_phi_deg))
-        )
+        ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         n = rgb.shape[0]
         if ti.size == 1 and n != 1:
-            ti, tr, dp = (np.broadcast_to(a.reshape(1), (n,)) for a in (ti, tr, dp))
+            ti, tr, dp = (np.broadcast_to(a, (n,)) for a in (ti, tr, dp))
         elif ti.size != n:
             raise ValueError(f"{ti.size} angle samples but {n} RGB samples")
         self._stored = None
+        if self.backend == "numpy":
+            return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)
         return self._acc.add_with(
             kernels().iso_add,
-            ti.reshape(-1),
-            tr.reshape(-1),
-            dp.reshape(-1),
+            ti,
+            tr,
+            dp,
             rgb,
             self.theta_i_edges,
             self.theta_r_edges,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -24,6 +24,7 @@ from acquisition.tables.accumulator import (
     BinAccumulator,
     TableStatistics,
 )
+from acquisition.tables.angles import as_flat_float64
 from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
 
@@ -71,12 +72,9 @@ class MerlTable(TableStatistics):
         rgb = _as_rgb(rgb, wi.shape[0])
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_vectors, wi, wo, rgb)
-        n = wi.shape[0]
-        idx = np.empty(min(CHUNK, n), dtype=np.int64)
-        kept = 0
-        for a in range(0, n, CHUNK):
-            b = min(a + CHUNK, n)
-            i, o, flat = wi[a:b], wo[a:b], idx[: b - a]
+
+        def fill(a: int, b: int, flat: np.ndarray) -> bool:
+            i, o = wi[a:b], wo[a:b]
             th, td, pd = halfdiff_rad_from_vectors(i, o)
             valid = flat_index_unclamped_into(th, td, pd, flat, np.pi)
             if not (i[:, 2].min() > 0.0 and o[:, 2].min() > 0.0):  # False on NaN too
@@ -85,8 +83,9 @@ class MerlTable(TableStatistics):
                 given_nan = np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)
                 # wi = −wo has no half vector (NaN angles): still below the horizon.
                 flat[below & ~given_nan] = DROP_OUT_OF_RANGE
-            kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
-        return kept
+            return valid
+
+        return self._add_chunked(rgb, fill)
 
     def add_angles(
         self,
@@ -101,18 +100,13 @@ class MerlTable(TableStatistics):
         the reference lookup at the same angles reads. θi or θr outside [0°, 90°] is dropped.
         Returns the number kept.
         """
-        ti, tr, dp = (
-            np.asarray(x, dtype=np.float64).reshape(-1)
-            for x in np.broadcast_arrays(theta_i_deg, theta_r_deg, delta_phi_deg)
-        )
+        ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         rgb = _as_rgb(rgb, ti.size)
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_angles, ti, tr, dp, rgb)
-        idx = np.empty(min(CHUNK, ti.size), dtype=np.int64)
-        kept = 0
-        for a in range(0, ti.size, CHUNK):
-            b = min(a + CHUNK, ti.size)
-            x, y, flat = ti[a:b], tr[a:b], idx[: b - a]
+
+        def fill(a: int, b: int, flat: np.ndarray) -> bool:
+            x, y = ti[a:b], tr[a:b]
             th, td, pd = halfdiff_rad_reference(
                 np.radians(x), 0.0, np.radians(y), np.radians(dp[a:b])
             )
@@ -120,8 +114,9 @@ class MerlTable(TableStatistics):
             with np.errstate(invalid="ignore"):
                 outside = (x < 0.0) | (x > 90.0) | (y < 0.0) | (y > 90.0)
             flat[outside & (flat != DROP_NAN)] = DROP_OUT_OF_RANGE
-            kept += self._acc.add_flat(flat, rgb[a:b])
-        return kept
+            return False
+
+        return self._add_chunked(rgb, fill)
 
     def add_halfdiff(
         self,
@@ -137,21 +132,28 @@ class MerlTable(TableStatistics):
         angles reads (even on a bin edge). θh or θd outside [0°, 90°] is dropped; φd outside
         (−180°, 180°] is folded by whole half turns.
         """
-        th, td, pd = (
-            np.asarray(x, dtype=np.float64).reshape(-1)
-            for x in np.broadcast_arrays(theta_h_deg, theta_d_deg, phi_d_deg)
-        )
+        th, td, pd = as_flat_float64(theta_h_deg, theta_d_deg, phi_d_deg)
         rgb = _as_rgb(rgb, th.size)
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_halfdiff_deg, th, td, pd, rgb)
-        idx = np.empty(min(CHUNK, th.size), dtype=np.int64)
-        kept = 0
-        for a in range(0, th.size, CHUNK):
-            b = min(a + CHUNK, th.size)
-            flat = idx[: b - a]
-            valid = flat_index_unclamped_into(
+
+        def fill(a: int, b: int, flat: np.ndarray) -> bool:
+            return flat_index_unclamped_into(
                 np.radians(th[a:b]), np.radians(td[a:b]), np.radians(pd[a:b]), flat, np.pi
             )
+
+        return self._add_chunked(rgb, fill)
+
+    def _add_chunked(self, rgb: np.ndarray, fill: Callable[[int, int, np.ndarray], bool]) -> int:
+        """numpy path: per chunk [a, b), ``fill(a, b, flat)`` writes the flat indices and says
+        whether all are known valid; the chunk is then accumulated. Returns the number kept."""
+        n = rgb.shape[0]
+        idx = np.empty(min(CHUNK, n), dtype=np.int64)
+        kept = 0
+        for a in range(0, n, CHUNK):
+            b = min(a + CHUNK, n)
+            flat = idx[: b - a]
+            valid = fill(a, b, flat)
             kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
         return kept
 

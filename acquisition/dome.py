@@ -216,13 +216,19 @@ class Dome:
         return _azimuth_deg(self.directions)
 
 
-def _directions_from_list(value: object, field: str) -> np.ndarray:
+def _float_rows(value: object, field: str, columns: int, what: str) -> np.ndarray:
+    """``value`` as a non-empty (N, columns) float array; ConfigError naming ``field`` if not."""
     try:
-        d = np.asarray(value, dtype=float)
+        a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ConfigError(f"{field} must be a list of [x, y, z] triples") from None
-    if d.ndim != 2 or d.shape[1] != 3 or len(d) == 0:
-        raise ConfigError(f"{field} must be a non-empty list of [x, y, z] triples, got {d.shape}")
+        raise ConfigError(f"{field} must be a list of {what}") from None
+    if a.ndim != 2 or a.shape[1] != columns or len(a) == 0:
+        raise ConfigError(f"{field} must be a non-empty list of {what}, got {a.shape}")
+    return a
+
+
+def _directions_from_list(value: object, field: str) -> np.ndarray:
+    d = _float_rows(value, field, 3, "[x, y, z] triples")
     norm = np.linalg.norm(d, axis=1)
     bad = np.flatnonzero(~np.isfinite(norm) | (norm == 0))
     if bad.size:
@@ -231,12 +237,7 @@ def _directions_from_list(value: object, field: str) -> np.ndarray:
 
 
 def _directions_from_angles(value: object, field: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{field} must be a list of [zenith_deg, azimuth_deg] pairs") from None
-    if a.ndim != 2 or a.shape[1] != 2 or len(a) == 0:
-        raise ConfigError(f"{field} must be a non-empty list of [zenith_deg, azimuth_deg] pairs")
+    a = _float_rows(value, field, 2, "[zenith_deg, azimuth_deg] pairs")
     th, ph = np.radians(a[:, 0]), np.radians(a[:, 1])
     return np.column_stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
 

@@ -8,7 +8,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
+import math
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,11 +27,14 @@ from .planner import Planner, Sweep  # noqa: F401  (re-exported)
 from .reduce import Reduction, reduce_session
 from .rig import RigConfig, load_rig
 from .session import CaptureEngine, SessionEngine, SessionFolder, create_session
-from .steps import Step, count_rows, pose_steps
+from .steps import CUSTOM, Step, count_rows, pose_steps
+from .timing import TimeModel
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 
 Progress = Callable[[int, int, StepRecord], None]
+OnOpen = Callable[[SessionFolder, float | None], None]
+"""Called once a run's devices are open: ``(session folder, device time s or None)``."""
 
 
 @dataclass
@@ -52,12 +56,59 @@ def plan_sweep(plan_path: str | Path, rig_path: str | Path) -> Sweep:
     return planner.plan(plan.poses(), start)
 
 
+def predicted_step_s(records: Iterable[StepRecord], model: TimeModel,
+                     start: Mapping[str, float] | None = None) -> dict[int, float]:
+    """Predicted rig time (s) of each journal step, in journal order: ``{step: s}``.
+
+    A step whose joints differ from the previous step's (the first step always: the engine
+    moves once to where it starts) costs the move from there (:meth:`TimeModel.move_s`, from
+    ``start`` for the first) plus settle and bus time; every frame costs the exposure, times
+    its bracket factor (``note`` ``"bracket=F"``). Custom steps cost nothing.
+    """
+    costs = model.costs
+    out: dict[int, float] = {}
+    at: Mapping[str, float] | None = None
+    for rec in records:
+        t = 0.0
+        joints = rec.joints_cmd
+        if joints and (at is None or not _same(at, joints)):
+            t += model.move_s(at if at is not None else (start or joints), joints)
+            t += costs.settle_s + costs.bus_cycle_s
+            at = joints
+        if rec.kind != CUSTOM:
+            factor = 1.0
+            if rec.note and rec.note.startswith("bracket="):
+                factor = float(rec.note.removeprefix("bracket="))
+            t += costs.exposure_s * factor
+        out[rec.step] = t
+    return out
+
+
+def _same(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
+    return a.keys() == b.keys() and all(math.isclose(a[k], b[k], abs_tol=1e-9) for k in a)
+
+
+def step_durations(session: str | Path | SessionFolder, *, pending_only: bool = True
+                   ) -> dict[int, float]:
+    """Predicted rig time (s) of a pre-planned session's journal steps (the steps not done
+    yet by default), from the planner's time model; see :func:`predicted_step_s`."""
+    folder = session if isinstance(session, SessionFolder) else SessionFolder(session)
+    planner = folder.planner()
+    with folder.journal(readonly=True) as journal:
+        records = list(journal.steps())
+    predicted = predicted_step_s(records, planner.time_model, planner.reference_joints())
+    if pending_only:
+        done = {r.step for r in records if r.status == "done"}
+        predicted = {k: v for k, v in predicted.items() if k not in done}
+    return predicted
+
+
 def run_session(
     folder: SessionFolder,
     *,
     sim_faults: Sequence[str] = (),
     progress: Progress | None = None,
-    on_open: Callable[[SessionFolder, float | None], None] | None = None,
+    on_open: OnOpen | None = None,
     observers: Sequence[Observer] = (),
 ) -> CaptureResult:
     """Run (or continue) every step of a pre-planned session that is not done yet."""
@@ -89,15 +140,19 @@ def capture(
     progress: Progress | None = None,
     calibration: str | Path | None = None,
     observers: Sequence[Observer] = (),
+    on_open: OnOpen | None = None,
 ) -> CaptureResult:
     """Create a session folder at ``out`` and capture the plan on the rig.
 
     ``calibration`` (a file or folder) is copied into the session for provenance.
+    ``on_open(folder, device_time_s)`` is called once the devices are open (e.g. to start a
+    progress ETA from :func:`step_durations`).
     """
     material = _check_material(load_rig(rig_path), material)
     folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
                                calibration=calibration)
-    return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers)
+    return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers,
+                       on_open=on_open)
 
 
 def _check_material(rig: RigConfig, material: str | None) -> str | None:
@@ -113,8 +168,12 @@ def resume(
     sim_faults: Sequence[str] = (),
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
+    on_open: OnOpen | None = None,
 ) -> CaptureResult:
-    """Continue an interrupted session where it stopped (gonio or light-stage)."""
+    """Continue an interrupted session where it stopped (gonio or light-stage).
+
+    ``on_open`` as for :func:`capture` (gonio sessions only).
+    """
     from .lightstage.reduce import is_lightstage_session
 
     if is_lightstage_session(session_dir):
@@ -122,7 +181,7 @@ def resume(
 
         return resume_lightstage(session_dir, progress=progress, observers=observers)  # type: ignore[return-value]
     return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
-                       observers=observers)
+                       observers=observers, on_open=on_open)
 
 
 class ScriptedSession:

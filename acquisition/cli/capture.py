@@ -8,7 +8,7 @@ from acquisition import api
 from acquisition.interrupts import sigint_stops_motion
 
 from .console import operator_output
-from .progress import step_bar
+from .progress import StepBar, step_bar
 
 
 def add_sim_fault_option(p: argparse.ArgumentParser) -> None:
@@ -54,18 +54,26 @@ def _finish(result: api.CaptureResult) -> int:
     return 0
 
 
+def eta_from_time_model(bar: StepBar) -> api.OnOpen:
+    """``on_open`` hook: the bar's ETA from the planner's per-step predictions."""
+    def start(folder: api.SessionFolder, _device_time_s: float | None) -> None:
+        bar.start_eta(api.step_durations(folder))
+    return start
+
+
 def run_capture(args: argparse.Namespace) -> int:
     print_estimate(api.plan_sweep(args.plan, args.rig))
     with operator_output(), sigint_stops_motion(), step_bar("capture") as bar:
         result = api.capture(args.rig, args.plan, args.out, material=args.material,
                              seed=args.seed, sim_faults=args.sim_fault, progress=bar,
-                             calibration=args.calibration)
+                             calibration=args.calibration, on_open=eta_from_time_model(bar))
     return _finish(result)
 
 
 def run_resume(args: argparse.Namespace) -> int:
     with operator_output(), sigint_stops_motion(), step_bar("resume") as bar:
-        result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar)
+        result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar,
+                            on_open=eta_from_time_model(bar))
     return _finish(result)
 
 

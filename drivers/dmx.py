@@ -443,10 +443,7 @@ class DmxWidget:
         try:
             self._params = WidgetParameters.from_reply(data)
         except ValueError as exc:
-            raise CommunicationError(
-                f"DMX widget on {self._port} sent a malformed reply ({exc}); "
-                "check that it is an Enttec DMX USB Pro compatible widget"
-            ) from None
+            raise self._malformed(exc) from None
         return self._params
 
     def get_serial_number(self) -> str:
@@ -455,12 +452,15 @@ class DmxWidget:
         try:
             return decode_serial_number(data)
         except ValueError as exc:
-            raise CommunicationError(
-                f"DMX widget on {self._port} sent a malformed reply ({exc}); "
-                "check that it is an Enttec DMX USB Pro compatible widget"
-            ) from None
+            raise self._malformed(exc) from None
 
     # -- internals -----------------------------------------------------------------------------
+
+    def _malformed(self, exc: ValueError) -> CommunicationError:
+        return CommunicationError(
+            f"DMX widget on {self._port} sent a malformed reply ({exc}); "
+            "check that it is an Enttec DMX USB Pro compatible widget"
+        )
 
     def _ser(self) -> serial.SerialBase:
         if self._serial is None:

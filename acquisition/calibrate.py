@@ -11,9 +11,10 @@ at the white-reference pose and stores its result in a :class:`calibration.bundl
 ``white``  the white reference at the rig's reference geometry, linearized with whatever the
            bundle holds → per-colour signal, reflectance, θi and light distance.
 
-On a simulated rig the lens cap is a camera that sees a black scene, and the uniform target is
-the simulator's white reference spread over the whole frame (its radiance at the reference
-geometry), both on the rig's own sensor model and simulated clock.
+On a simulated rig the sample holder presents the simulator's calibration targets
+(:class:`acquisition.simscene.SampleHolder`): ``"cap"`` (the lens cap, a black frame) and
+``"uniform"`` (the white reference's radiance over the whole frame), seen by the rig's own
+camera on its simulated clock (with the rig's light drift, if it states one).
 """
 
 from __future__ import annotations
@@ -34,13 +35,12 @@ from calibration.noise import photon_transfer
 from calibration.raw import RawFrame, load_raw
 from calibration.white import measure_white
 from drivers.errors import CalibrationError, ConfigError
-from simulators.camera import SimCamera
 
 from .devices import RigDevices, open_devices
 from .kinematics import Pose
 from .planner import Planner
 from .rig import RigConfig, load_rig
-from .simscene import radiance_at, white_material
+from .simscene import TARGETS, SampleHolder, white_material
 
 KINDS = ("dark", "flat", "noise", "white")
 FLAT_FRAMES = 16
@@ -62,39 +62,28 @@ class CalibrationRun:
 
 
 class _Frames:
-    """Takes frames into a temporary folder through one camera."""
+    """Takes frames of one target into a temporary folder through the rig's camera.
 
-    def __init__(self, camera: SimCamera, folder: Path, iso: int, progress: Progress | None,
-                 total: int) -> None:
-        self.camera, self.folder, self.iso = camera, folder, iso
+    ``seed`` offsets the frames' noise seeds, so each series has its own noise.
+    """
+
+    def __init__(self, dev: RigDevices, target: str, folder: Path, iso: int,
+                 progress: Progress | None, total: int, seed: int = 0) -> None:
+        if not isinstance(dev.holder, SampleHolder):  # pragma: no cover - hardware
+            raise ConfigError(f"{dev.rig.path}: calibration on real cameras is not wired yet")
+        self.dev, self.target, self.folder, self.iso = dev, target, folder, iso
         self.progress, self.total, self.count = progress, total, 0
+        self.seed = seed
 
     def take(self, exposure_s: float, tag: str) -> RawFrame:
-        path = self.folder / f"{tag}-{self.count:04d}.dng"
-        self.camera.capture(path, exposure_s, self.iso)
+        path = self.folder / f"{tag}-{self.target}-{self.seed}-{self.count:04d}.dng"
+        self.dev.present(self.target)
+        series = self.seed * 1_000_003 + TARGETS.index(self.target) * 100_003
+        self.dev.capture(path, exposure_s, self.iso, series + self.count)
         self.count += 1
         if self.progress:
             self.progress(min(self.count, self.total), self.total)
         return load_raw(path)
-
-
-def _sim_camera(dev: RigDevices, scene: Callable[[], np.ndarray], seed: int) -> SimCamera:
-    if dev.holder is None:  # pragma: no cover - hardware path: operator caps the lens / lights
-        raise ConfigError(f"{dev.rig.path}: calibration on real cameras is not wired yet")
-    return SimCamera(dev.camera.sensor, scene, dev.clock, seed=seed, model="SimCam-calibration")
-
-
-def _lens_cap(dev: RigDevices, seed: int) -> SimCamera:
-    shape = (*dev.camera.sensor.superpixel_shape, 3)
-    return _sim_camera(dev, lambda: np.zeros(shape), seed)
-
-
-def _uniform_target(dev: RigDevices, planner: Planner, joints: dict[str, float],
-                    seed: int) -> SimCamera:
-    rig = dev.rig
-    rad = radiance_at(planner.kinematics, joints, white_material(rig), rig.light_intensity_w_per_sr)
-    shape = (*dev.camera.sensor.superpixel_shape, 3)
-    return _sim_camera(dev, lambda: np.broadcast_to(rad, shape), seed)
 
 
 def _fill(frame: RawFrame) -> float:
@@ -154,6 +143,8 @@ def calibrate(
     wr = rig.white_reference
     with open_devices(rig, planner, material=white_material(rig), seed=seed) as dev, \
             tempfile.TemporaryDirectory(prefix=f"gonio-{kind}-") as tmp:
+        if isinstance(dev.holder, SampleHolder) and dev.holder.clock is None:
+            dev.holder.sim_attach(rig, dev.clock)
         joints = dev.move_to(dict(planner.joints_for(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))))
         bundle = CalibrationBundle.create(bundle_path, camera=dev.camera.describe())
         folder = Path(tmp)
@@ -165,7 +156,7 @@ def calibrate(
 
 def _take_dark(dev: RigDevices, folder: Path, exposure: float, iso: int, n: int, seed: int,
                progress: Progress | None) -> np.ndarray:
-    cam = _Frames(_lens_cap(dev, seed), folder, iso, progress, n)
+    cam = _Frames(dev, "cap", folder, iso, progress, n, seed)
     return master_dark([cam.take(exposure, f"dark-{exposure:g}") for _ in range(n)])
 
 
@@ -186,8 +177,7 @@ def _dark(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames, 
 def _flat(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames, seed, progress,
           rig) -> CalibrationRun:
     n = frames or FLAT_FRAMES
-    cam = _Frames(_uniform_target(dev, planner, joints, seed), folder, iso, progress,
-                  n + MIN_DARK_FRAMES)
+    cam = _Frames(dev, "uniform", folder, iso, progress, n + MIN_DARK_FRAMES, seed)
     t = _expose_for_fill(lambda e: cam.take(e, "test"), exposure, FLAT_FILL)
     flats = [cam.take(t, "flat") for _ in range(n)]
     dark = bundle.dark_for(t, iso)
@@ -207,14 +197,13 @@ def _flat(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames, 
 def _noise(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames, seed, progress,
            rig) -> CalibrationRun:
     levels = frames or 8
-    cam = _Frames(_uniform_target(dev, planner, joints, seed), folder, iso, progress,
-                  2 * levels + 2)
+    cam = _Frames(dev, "uniform", folder, iso, progress, 2 * levels + 2, seed)
     t_top = _expose_for_fill(lambda e: cam.take(e, "test"), exposure, 0.8)
     pairs = []
     for k in range(levels):
         t = t_top * 2.0 ** (-(levels - 1 - k) * 6.0 / max(levels - 1, 1))  # 1.6 % … 80 % fill
         pairs.append((cam.take(t, "ptc"), cam.take(t, "ptc")))
-    cap = _Frames(_lens_cap(dev, seed + 2), folder, iso, None, 2)
+    cap = _Frames(dev, "cap", folder, iso, None, 2, seed + 2)
     pairs.insert(0, (cap.take(t_top / 64, "ptc-dark"), cap.take(t_top / 64, "ptc-dark")))
     ptc = photon_transfer(pairs)
     gain, read = ptc.model.per_colour()
@@ -228,8 +217,7 @@ def _noise(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames,
 def _white(dev, planner, joints, bundle, folder, prov, *, exposure, iso, frames, seed, progress,
            rig: RigConfig) -> CalibrationRun:
     n = frames or WHITE_FRAMES
-    dev.present("white")
-    cam = _Frames(dev.camera, folder, iso, progress, n)
+    cam = _Frames(dev, "white", folder, iso, progress, n, seed)
     x0, y0, x1, y1 = rig.camera.roi
     t = exposure
     images = []

@@ -12,44 +12,119 @@ Two renderers, chosen by the rig file's ``[sample] image_based``:
   (:mod:`acquisition.imaging`: pinhole camera, flat or spherical sample, point light), so
   the radiance is f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat
   Lambertian plate of the sample's ``size_m`` at the origin, rendered the same way.
+
+Calibration targets (:meth:`SampleHolder.present`): ``"cap"`` (the lens cap: a black frame)
+and ``"uniform"`` (a uniform white target filling the frame, at the white reference's radiance
+for the current geometry).
+
+Light drift: the rig file's ``[simulation]`` may make the lamp's intensity a function of the
+device clock t (s), a factor on every lit frame (see :class:`LightDrift`)::
+
+    light_drift_pct = 2.0          # total change, % (negative: the lamp dims)
+    light_drift_s = 600.0          # duration (linear) or time constant (warmup), s
+    light_drift_shape = "linear"   # 1 + p·min(t / s, 1); "warmup": 1 + p·(1 − exp(−t / s))
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from simulators.clock import SimClock
 from simulators.materials import Lambert, Material
 
+from .config import Section
 from .imaging import frame_geometry
 from .kinematics import Kinematics
 from .rig import RigConfig
 
 SAMPLE_MARGIN_SUPERPIXELS = 4
 """Sample extent beyond the region of interest on each side."""
+TARGETS = ("sample", "white", "cap", "uniform")
+"""What :meth:`SampleHolder.present` accepts."""
+DRIFT_SHAPES = ("linear", "warmup")
+
+
+@dataclass(frozen=True)
+class LightDrift:
+    """The simulated lamp's intensity factor over device time (``[simulation] light_drift_*``).
+
+    Attributes
+    ----------
+    pct:
+        Total change, % (2.0: the lamp ends 2 % brighter).
+    duration_s:
+        ``"linear"``: time over which the change accrues, s (constant after it);
+        ``"warmup"``: time constant of 1 − exp(−t/τ), s.
+    shape:
+        ``"linear"`` or ``"warmup"``.
+    """
+
+    pct: float = 0.0
+    duration_s: float = 600.0
+    shape: str = "linear"
+
+    def factor(self, t_s: float) -> float:
+        """Intensity at device time ``t_s`` (s) relative to t = 0."""
+        if not self.pct:
+            return 1.0
+        t = max(t_s, 0.0) / self.duration_s
+        ramp = min(t, 1.0) if self.shape == "linear" else 1.0 - math.exp(-t)
+        return 1.0 + self.pct / 100.0 * ramp
+
+    @classmethod
+    def from_rig(cls, rig: RigConfig) -> LightDrift:
+        """The rig file's drift (none when it states none); raises ConfigError naming the key."""
+        sim = Section(rig.raw.get("simulation", {}), str(rig.path), "simulation")
+        shape = sim.get("light_drift_shape", str, "linear")
+        if shape not in DRIFT_SHAPES:
+            raise sim.error("light_drift_shape", f"is '{shape}': use one of {', '.join(DRIFT_SHAPES)}")
+        return cls(sim.number("light_drift_pct", 0.0, min=-50.0, max=50.0),
+                   sim.number("light_drift_s", 600.0, min=1e-6), shape)
 
 
 @dataclass
 class SampleHolder:
-    """Which target sits on the stage: the sample material or the white reference."""
+    """Which target sits on the stage, whether the lamp is lit, and the lamp's drift.
+
+    ``clock`` (the rig's device clock) drives ``drift``; without a clock the lamp is steady.
+    """
 
     sample: Material
     white: Material
     current: str = "sample"
     light_on: bool = True
     """Whether the simulated lamp is lit (off for dark frames)."""
+    clock: SimClock | None = None
+    drift: LightDrift | None = None
 
     def present(self, target: str) -> None:
-        """Put ``target`` ("sample" or "white") on the stage (instantaneous in simulation)."""
-        if target not in ("sample", "white"):
-            raise ValueError(f"unknown target {target!r}")
+        """Put ``target`` on the stage (instantaneous in simulation): ``"sample"``,
+        ``"white"`` (reference), ``"cap"`` (lens cap) or ``"uniform"`` (flat-field target)."""
+        if target not in TARGETS:
+            raise ValueError(f"unknown target {target!r}: use one of {', '.join(TARGETS)}")
         self.current = target
 
     @property
     def material(self) -> Material:
         return self.sample if self.current == "sample" else self.white
+
+    def lamp(self) -> float:
+        """The lamp's intensity factor now: 0 when off, else the drift at the device clock."""
+        if not self.light_on:
+            return 0.0
+        if self.drift is None or self.clock is None:
+            return 1.0
+        return self.drift.factor(self.clock.now())
+
+    def sim_attach(self, rig: RigConfig, clock: Any) -> None:
+        """Drive the lamp by ``clock`` (device s) with the rig file's drift."""
+        self.clock = clock
+        self.drift = LightDrift.from_rig(rig)
 
 
 def white_material(rig: RigConfig) -> Material:
@@ -85,9 +160,14 @@ def make_scene(
 
     def scene() -> np.ndarray:
         image = np.zeros((h, w, 3))
-        image[ys, xs] = radiance_at(
-            kinematics, true_joints(), holder.material, rig.light_intensity_w_per_sr * holder.light_on
-        )
+        if holder.current == "cap":
+            return image
+        rad = radiance_at(kinematics, true_joints(), holder.material,
+                          rig.light_intensity_w_per_sr * holder.lamp())
+        if holder.current == "uniform":
+            image[:] = rad
+        else:
+            image[ys, xs] = rad
         return image
 
     return scene
@@ -118,10 +198,16 @@ def make_image_scene(
     """Per-pixel scene of an image-based rig, from the TRUE joint angles at each call."""
 
     def scene() -> np.ndarray:
+        if holder.current in ("cap", "uniform"):
+            image = np.zeros((*shape_superpixels, 3))
+            if holder.current == "uniform":
+                image[:] = radiance_at(kinematics, true_joints(), holder.white,
+                                       rig.light_intensity_w_per_sr * holder.lamp())
+            return image
         g = kinematics.forward_geometry(true_joints())
         target = None if holder.current == "sample" else "flat"
         image = render_image(rig, g.light_dir, g.camera_dir, holder.material,
                              shape_superpixels, target)
-        return image if holder.light_on else np.zeros_like(image)
+        return image * holder.lamp()
 
     return scene

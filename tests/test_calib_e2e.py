@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from conftest import SMALL_PLAN
 
-import acquisition.simscene as simscene
 from acquisition import api
 from acquisition.cli import main
 from acquisition.reduce import reduce_session
@@ -94,27 +93,45 @@ def test_predicted_bin_variance_matches_the_scatter_of_repeated_captures(
     assert 0.8 <= ratio <= 1.2
 
 
-def test_two_percent_light_drift_is_corrected(calibrated: dict[str, Path], monkeypatch) -> None:
-    # The lamp warms up: its intensity rises by ~2 % over the session, following
-    # 1 − exp(−k/6) in the capture count k (the scene renders once per capture).
-    calls = {"n": 0}
-    real = simscene.radiance_at
-
-    def drifting(*args, **kwargs):
-        calls["n"] += 1
-        return real(*args, **kwargs) * (1 + 0.02 * (1 - math.exp(-calls["n"] / 6)))
-
-    monkeypatch.setattr(simscene, "radiance_at", drifting)
+@pytest.mark.parametrize("shape", ["warmup", "linear"])
+def test_two_percent_light_drift_is_corrected(
+    calibrated: dict[str, Path], rig_sim_text: str, shape: str
+) -> None:
+    # The simulated lamp drifts by 2 % on the device clock, as the rig file says: a warm-up
+    # (1 − exp(−t/τ), τ a quarter of the session) or linear over the session.
     plan = calibrated["root"] / "plan-refs.toml"
     plan.write_text(PLAN + "[capture]\nreference_every = 3\n")
-    out = calibrated["root"] / "drift"
-    api.capture(calibrated["rig"], plan, out, material="lambert:albedo=0.18", seed=4,
+    session_s = api.plan_sweep(plan, calibrated["rig"]).estimated_s
+    span = session_s / 4 if shape == "warmup" else session_s
+    rig = calibrated["root"] / f"rig-drift-{shape}.toml"
+    rig.write_text(calibrated["rig"].read_text().replace(
+        "[simulation]\n",
+        f'[simulation]\nlight_drift_pct = 2.0\nlight_drift_s = {span}\n'
+        f'light_drift_shape = "{shape}"\n', 1))
+    out = calibrated["root"] / f"drift-{shape}"
+    api.capture(rig, plan, out, material="lambert:albedo=0.18", seed=4,
                 calibration=calibrated["bundle"])
     reduction = reduce_session(out)
     assert 1.5 <= reduction.drift_pct <= 2.5
     measured = reduction.table.count > 0
     rel = np.abs(reduction.table.mean[measured] / GREY - 1)
     assert np.median(rel) <= 0.003
+
+
+def test_light_drift_keys_are_checked(rig_sim_text: str, tmp_path: Path) -> None:
+    from acquisition.rig import load_rig
+    from acquisition.simscene import LightDrift
+    from drivers.errors import ConfigError
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(rig_sim_text.replace("[simulation]\n", '[simulation]\nlight_drift_pct = 2\n'
+                                        'light_drift_shape = "sine"\n', 1))
+    with pytest.raises(ConfigError, match=r"light_drift_shape.*linear, warmup"):
+        LightDrift.from_rig(load_rig(rig))
+    drift = LightDrift(2.0, 100.0, "linear")
+    assert drift.factor(0) == 1.0 and drift.factor(50) == pytest.approx(1.01)
+    assert drift.factor(500) == pytest.approx(1.02)
+    assert LightDrift(2.0, 100.0, "warmup").factor(100) == pytest.approx(1 + 0.02 * (1 - math.exp(-1)))
 
 
 def test_master_dark_removes_the_dark_current_bias(

@@ -76,6 +76,18 @@ def test_grey_lambert_absolute_within_one_percent(calibrated: dict[str, Path]) -
     assert table.provenance["calibration_bundle"] == str(reduction.bundle.resolve())
 
 
+def test_rough_ggx_within_three_percent(calibrated: dict[str, Path]) -> None:
+    from acquisition.truth import relative_errors, truth_table
+
+    out = calibrated["root"] / "rough-ggx"
+    api.capture(calibrated["rig"], calibrated["plan"], out,
+                material="ggx:albedo=0.2,alpha=0.3,f0=0.04", seed=3,
+                calibration=calibrated["bundle"])
+    rel = relative_errors(reduce_session(out).table, truth_table(out))
+    assert rel.size >= 8
+    assert np.median(rel) <= 0.03
+
+
 def test_predicted_bin_variance_matches_the_scatter_of_repeated_captures(
     calibrated: dict[str, Path],
 ) -> None:

@@ -81,3 +81,20 @@ def sim(clock):
 
     with SimServoBus([1, 2, 3], clock=clock) as bus:
         yield bus
+
+
+@pytest.fixture
+def sims(monkeypatch: pytest.MonkeyPatch) -> list:
+    """Every simulated bus the code under test starts (to look at its servos afterwards)."""
+    import acquisition.devices as devices_mod
+    from simulators.dynamixel import SimServoBus
+
+    started: list[SimServoBus] = []
+
+    class Recorded(SimServoBus):
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            super().__init__(*args, **kwargs)
+            started.append(self)
+
+    monkeypatch.setattr(devices_mod, "SimServoBus", Recorded)
+    return started

@@ -27,20 +27,6 @@ PARK = {"light_theta": 0.0, "camera_theta": 45.0, "camera_phi": 0.0}
 TICK_DEG = 360 / 4096
 
 
-@pytest.fixture
-def sims(monkeypatch: pytest.MonkeyPatch) -> list[SimServoBus]:
-    """Every simulated bus the console starts (to check the servos' true state)."""
-    started: list[SimServoBus] = []
-
-    class Recorded(SimServoBus):
-        def __init__(self, *args: object, **kwargs: object) -> None:
-            super().__init__(*args, **kwargs)
-            started.append(self)
-
-    monkeypatch.setattr(devices_mod, "SimServoBus", Recorded)
-    return started
-
-
 def goal_ticks(bus: SimServoBus, sid: int) -> int:
     return int.from_bytes(bus.servos[sid].read(116, 4)[1], "little", signed=True)
 

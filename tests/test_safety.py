@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import acquisition.devices as devices_mod
 from acquisition import api
 from acquisition.cli import main
 from acquisition.console import open_console
@@ -79,20 +78,6 @@ def baseline(files: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory
     out = tmp_path_factory.mktemp("baseline") / "s"
     api.capture(rig, plan, out, material=MATERIAL, seed=SEED)
     return api.reduce(out).table
-
-
-@pytest.fixture
-def sims(monkeypatch: pytest.MonkeyPatch) -> list[SimServoBus]:
-    """Every simulated bus the code under test starts (to look at its servos afterwards)."""
-    started: list[SimServoBus] = []
-
-    class Recorded(SimServoBus):
-        def __init__(self, *args: object, **kwargs: object) -> None:
-            super().__init__(*args, **kwargs)
-            started.append(self)
-
-    monkeypatch.setattr(devices_mod, "SimServoBus", Recorded)
-    return started
 
 
 def assert_same_table(session: Path, expected: IsotropicTable) -> None:

@@ -579,9 +579,7 @@ EXAMPLE_BAUD = 1_000_000
 @pytest.fixture
 def example_port():
     with SimServoBus([1, 2], baud=57600, clock=SimClock(20.0)) as sim:
-        port = PortHandler(sim.port)
-        assert port.openPort()
-        assert port.setBaudRate(EXAMPLE_BAUD)
+        port = open_port(sim.port, EXAMPLE_BAUD)
         yield port
         port.closePort()
 

@@ -194,7 +194,7 @@ def reduce_session(
     if rig.sample.image_based:
         from .reduce_image import reduce_image_session  # imports reduce: load lazily
 
-        return reduce_image_session(folder.path, progress)
+        return reduce_image_session(folder.path, progress, bundle=bundle)
     kin = rig.kinematics()
     with folder.journal() as journal:
         records = [r for r in journal.steps() if r.status == "done"]

@@ -23,6 +23,13 @@ reference frames (correcting slow drift), and every sample pixel gives
 The same calibration serves a flat or a spherical sample, because it measures the camera and
 light, not the sample.
 
+With a calibration bundle (``bundle=``, else the one copied into the session folder), every
+frame is linearized with its master dark, flat field (the camera's vignetting and pixel
+response: the plate's and the sample's pixels are corrected alike), bad-pixel map and noise
+model, as in :mod:`acquisition.reduce`. An HDR bracket (journal rows noted
+``hdr=<first step>:<k>``) is merged per superpixel with inverse-variance weights first and
+counts as one frame.
+
 Samples are binned frame by frame into a :class:`~acquisition.tables.MerlTable` and the plan's
 :class:`~acquisition.tables.IsotropicTable` (count, sum, sum of squares per bin); no more than
 one frame's samples are held at any time.
@@ -37,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.bundle import CalibrationBundle
+from calibration.hdr import merge
 from calibration.linearize import LinearImage, linearize
 from calibration.raw import load_raw
 from drivers.errors import SessionError
@@ -45,9 +54,9 @@ from .imaging import PixelGeometry, frame_geometry
 from .journal import StepRecord
 from .kinematics import poses_from_directions
 from .merl import write_merl
-from .reduce import Reduction
+from .reduce import Reduction, find_bundle, linearize_with_variance
 from .rig import RigConfig
-from .session import REFERENCE, SessionFolder
+from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
 from .tables import IsotropicTable, MerlTable
 
 DEFAULT_MIN_COS = 0.02
@@ -78,8 +87,37 @@ class ImageReduction(Reduction):
     """BRDF samples taken from the frames (before binning)."""
 
 
-def _linear(folder: SessionFolder, rec: StepRecord) -> LinearImage:
-    return linearize(load_raw(folder.frames_dir / str(rec.frame)))
+def _linear(folder: SessionFolder, rec: StepRecord,
+            bundle: CalibrationBundle | None = None) -> LinearImage:
+    frame = load_raw(folder.frames_dir / str(rec.frame))
+    return linearize(frame) if bundle is None else bundle.linearize(frame)
+
+
+def _merged(folder: SessionFolder, rig: RigConfig, recs: list[StepRecord],
+            bundle: CalibrationBundle | None) -> LinearImage:
+    """Inverse-variance merge of an HDR bracket's frames."""
+    images = [linearize_with_variance(folder.frames_dir / str(r.frame), rig, bundle)
+              for r in recs]
+    return merge(images, camera_noise_model(rig, float(images[0].iso or rig.camera.iso), bundle))
+
+
+def sample_frames(records: list[StepRecord], complete: set[int]) -> list[list[StepRecord]]:
+    """The done sample rows as frames: one row each, or the rows of a complete HDR bracket
+    (incomplete brackets are left out)."""
+    frames: list[list[StepRecord]] = []
+    groups: dict[int, list[StepRecord]] = {}
+    for r in records:
+        if r.kind == REFERENCE:
+            continue
+        g = hdr_group(r.note) if r.kind == POSE else None
+        if g is None:
+            frames.append([r])
+        elif g in complete:
+            if g not in groups:
+                groups[g] = []
+                frames.append(groups[g])
+            groups[g].append(r)
+    return frames
 
 
 def _geometry(rig: RigConfig, rec: StepRecord, shape: tuple[int, int],
@@ -125,22 +163,27 @@ def iter_session_samples(
     min_cos: float = DEFAULT_MIN_COS,
     max_frames: int | None = None,
     drift: list[float] | None = None,
+    bundle: str | Path | CalibrationBundle | None = None,
 ) -> Iterator[FrameSamples]:
     """Yield the BRDF samples of every captured sample frame of an image-based session, one
     frame at a time (at most ``max_frames``). ``drift``, if given, receives the white
-    reference's peak-to-peak change in % of its mean."""
+    reference's peak-to-peak change in % of its mean. ``bundle``: the calibration bundle to
+    apply (default: the session's copy, if any)."""
     folder = SessionFolder(session_dir)
     rig = folder.rig()
     if not rig.sample.image_based:
         raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
+    cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
     with folder.journal() as journal:
         records = [r for r in journal.steps() if r.status == "done"]
+        complete = {g for g in {hdr_group(r.note) for r in records} - {None}
+                    if journal.meta(f"{HDR_DONE_META}{g}") is not None}
     if not records:
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
     rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
     steps, cals = [], []
     for rec in (r for r in records if r.kind == REFERENCE):
-        image = _linear(folder, rec)
+        image = _linear(folder, rec, cb)
         geo = _geometry(rig, rec, image.valid.shape, "flat")
         cal, n = white_calibration(image, geo, rig.camera.roi, rho)
         if n == 0:
@@ -155,9 +198,10 @@ def iter_session_samples(
     ref_steps, ref_cals = np.array(steps, float), np.array(cals)
     if drift is not None:
         drift.append(float(np.max(np.ptp(ref_cals, axis=0) / np.mean(ref_cals, axis=0)) * 100.0))
-    poses = [r for r in records if r.kind != REFERENCE][:max_frames]
-    for rec in poses:
-        image = _linear(folder, rec)
+    for recs in sample_frames(records, complete)[:max_frames]:
+        rec = recs[0]
+        image = _linear(folder, rec, cb) if len(recs) == 1 and hdr_group(rec.note) is None \
+            else _merged(folder, rig, recs, cb)
         geo = _geometry(rig, rec, image.valid.shape)
         cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
         yield frame_samples(image, geo, cal, rec.step, min_cos)
@@ -170,6 +214,7 @@ def reduce_image_session(
     merl_path: str | Path | None = None,
     min_cos: float = DEFAULT_MIN_COS,
     max_frames: int | None = None,
+    bundle: str | Path | None = None,
 ) -> ImageReduction:
     """Bin every valid sample pixel of an image-based session into the MERL and isotropic tables.
 
@@ -185,14 +230,19 @@ def reduce_image_session(
         Drop samples with cos θi or cos θr below this.
     max_frames
         Reduce only the first N sample frames (e.g. of a capture still running).
+    bundle
+        Calibration bundle folder to apply; default the session's own copy, if any.
     """
     t0 = time.monotonic()
     folder = SessionFolder(session_dir)
     rig, plan = folder.rig(), folder.plan()
+    cal = find_bundle(folder, bundle)
     with folder.journal() as journal:
         done = [r for r in journal.steps() if r.status == "done"]
+        complete = {g for g in {hdr_group(r.note) for r in done} - {None}
+                    if journal.meta(f"{HDR_DONE_META}{g}") is not None}
     n_refs = sum(r.kind == REFERENCE for r in done)
-    total = len([r for r in done if r.kind != REFERENCE][:max_frames])
+    total = len(sample_frames(done, complete)[:max_frames])
     provenance = {
         "session": str(folder.path.resolve()),
         "rig": rig.name,
@@ -203,13 +253,15 @@ def reduce_image_session(
         "sample_shape": rig.sample.shape,
         "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
+    if cal is not None:
+        provenance["calibration_bundle"] = str(cal.path.resolve())
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance=provenance)
     merl = MerlTable(provenance)
     drift: list[float] = []
     samples = frames = 0
     for fs in iter_session_samples(folder.path, min_cos=min_cos, max_frames=max_frames,
-                                   drift=drift):
+                                   drift=drift, bundle=cal):
         merl.add_vectors(fs.wi, fs.wo, fs.brdf)
         angles = poses_from_directions(fs.wi, fs.wo)
         table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
@@ -222,4 +274,5 @@ def reduce_image_session(
     if merl_path is not None:
         write_merl(merl_path, merl)
     return ImageReduction(table=table, frames=frames, references=n_refs, drift_pct=drift[0],
-                          seconds=time.monotonic() - t0, merl=merl, samples=samples)
+                          seconds=time.monotonic() - t0, bundle=None if cal is None else cal.path,
+                          merl=merl, samples=samples)

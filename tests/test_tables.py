@@ -282,3 +282,13 @@ def test_accumulator_rebuilt_from_statistics_matches_sums():
     np.testing.assert_array_equal(back.count, acc.count)
     np.testing.assert_allclose(back.sum, acc.sum, rtol=1e-12)
     np.testing.assert_allclose(back.sum_of_squares, acc.sum_of_squares, rtol=1e-12)
+
+
+def test_add_leaves_the_callers_values_untouched() -> None:
+    """Regression: the numpy backend once squared a one-row batch in place."""
+    for backend in ("numpy", "numba"):
+        table = IsotropicTable([0, 45, 90], [0, 45, 90], [0, 90, 180], backend=backend)
+        rgb = np.array([[2.0, 3.0, 4.0]])
+        table.add(30, 40, 10, rgb)
+        np.testing.assert_array_equal(rgb, [[2.0, 3.0, 4.0]])
+        np.testing.assert_array_equal(table.mean[0, 0, 0], [2.0, 3.0, 4.0])

@@ -220,7 +220,8 @@ def test_quick_plan_rejections_and_estimate(rig_sim_path: Path, plan_quick_path:
 def test_reference_every_adds_round_trips(rig: RigConfig, plan_quick_path: Path) -> None:
     plan = load_plan(plan_quick_path)
     plain = Planner.for_plan(rig, plan)
-    every = Planner(rig, reference_every=10)
+    every = Planner(rig, reference_every=10, reciprocal=plan.reciprocal,
+                    mirror_delta_phi=plan.mirror_delta_phi)
     start = plain.reference_joints()
     a, b = plain.plan(plan.poses(), start), every.plan(plan.poses(), start)
     assert a.motion_s == pytest.approx(b.motion_s)

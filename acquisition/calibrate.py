@@ -143,8 +143,6 @@ def calibrate(
     wr = rig.white_reference
     with open_devices(rig, planner, material=white_material(rig), seed=seed) as dev, \
             tempfile.TemporaryDirectory(prefix=f"gonio-{kind}-") as tmp:
-        if isinstance(dev.holder, SampleHolder) and dev.holder.clock is None:
-            dev.holder.sim_attach(rig, dev.clock)
         joints = dev.move_to(dict(planner.joints_for(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))))
         bundle = CalibrationBundle.create(bundle_path, camera=dev.camera.describe())
         folder = Path(tmp)

@@ -568,6 +568,7 @@ def open_devices(
         holder = None
         if material is not None:
             holder = SampleHolder(material, white_material(rig))
+            holder.sim_attach(rig, clock)  # the lamp follows the device clock (light drift)
         sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
         scene = make_scene(rig, planner.kinematics, servos.true_joints, holder,
                            sensor.superpixel_shape)

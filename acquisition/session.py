@@ -392,7 +392,6 @@ class SessionEngine:
         }
         self._stop_requested = False
         self._journal: Journal | None = None
-        _drive_simulated_lamp(devices, self.rig)
 
     # ------------------------------------------------------------------ control
     def request_stop(self) -> None:
@@ -740,17 +739,6 @@ class SessionEngine:
         event = StepEvent(rec, self._done, self._total, frame)
         for ob in self.observers:
             ob.step(event)
-
-
-def _drive_simulated_lamp(devices: Any, rig: RigConfig) -> None:
-    """Let a simulated rig's lamp follow its device clock (``[simulation] light_drift_*``)
-    when :func:`acquisition.devices.open_devices` has not attached the clock itself."""
-    from .simscene import SampleHolder
-
-    holder = getattr(devices, "holder", None)
-    clock = getattr(devices, "clock", None)
-    if isinstance(holder, SampleHolder) and holder.clock is None and clock is not None:
-        holder.sim_attach(rig, clock)
 
 
 def _same_joints(a: Mapping[str, float], b: Mapping[str, float]) -> bool:

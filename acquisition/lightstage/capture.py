@@ -26,7 +26,7 @@ from ..planner import Planner
 from ..rig import load_rig
 from ..session import INFO_FILE, SessionEngine, SessionFolder, create_session
 from .config import StageConfig, stage_config
-from .devices import LightStageDevices, open_lightstage
+from .devices import LightStageDevices, OperatorPrompt, open_lightstage, operator_prompt
 from .sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
@@ -109,11 +109,14 @@ def capture_lightstage(
     dark: bool = True,
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
+    prompt: OperatorPrompt | None = None,
 ) -> LightStageResult:
     """Create a session folder at ``out`` and capture the light-stage sequence into it.
 
     ``sequences`` are names of :data:`acquisition.lightstage.sequences.SEQUENCES`; a white
-    reference OLAT pass (``white``) and a dark frame (``dark``) come first.
+    reference OLAT pass (``white``) and a dark frame (``dark``) come first. On real hardware
+    ``prompt`` asks the operator to swap the sample and the white reference (default: the
+    terminal; refused before anything is created when stdin is not one).
     """
     rig = load_rig(rig_path)
     stage = stage_config(rig)
@@ -121,6 +124,8 @@ def capture_lightstage(
     if rig.simulated:
         material = material or DEFAULT_MATERIAL
         material_from_spec(material)
+    elif rig.camera.driver != "simulated":
+        prompt = operator_prompt(rig, prompt)
     with tempfile.TemporaryDirectory() as tmp:
         if plan_path is None:
             plan_path = Path(tmp) / "plan.toml"
@@ -133,7 +138,8 @@ def capture_lightstage(
     estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
     info = dataclasses.replace(folder.info, estimated_s=estimate.total_s)
     (folder.path / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
-    return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage)
+    return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage,
+                             prompt=prompt)
 
 
 def resume_lightstage(
@@ -142,8 +148,10 @@ def resume_lightstage(
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
     stage: StageConfig | None = None,
+    prompt: OperatorPrompt | None = None,
 ) -> LightStageResult:
-    """Continue a light-stage session: replay its sequence, skipping the frames done."""
+    """Continue a light-stage session: replay its sequence, skipping the frames done
+    (``prompt``: see :func:`capture_lightstage`)."""
     folder = SessionFolder(session_dir)
     with folder.journal() as journal:
         meta = journal.meta(META_KEY)
@@ -160,7 +168,8 @@ def resume_lightstage(
     if progress is not None:
         obs.append(ProgressObserver(progress))
     planner = Planner.for_plan(rig, folder.plan())
-    with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage) as devices:
+    with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage,
+                         prompt=prompt) as devices:
         engine = LightStageEngine(folder, devices, planner, obs)
         t0 = devices.device_time_s()
         counts = engine.run(steps, _frames(steps))

@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import time
 import warnings
-from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass, field
@@ -42,7 +41,6 @@ from drivers.gphoto2 import GPhoto2Camera
 from simulators.camera import SimCamera
 from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
-from simulators.dynamixel.protocol import Packet
 from simulators.materials import Material
 from simulators.sensor import SensorModel
 
@@ -230,46 +228,11 @@ def make_clock(rig: RigConfig) -> SimClock:
     """The device clock of a simulated rig: ``[simulation] clock`` (default ``"stepped"``).
 
     A :class:`SteppedClock` moves only when a device waits or spends time on purpose, and the
-    servo simulators then charge each packet its time on the wire (:class:`WireTimed`),
+    servo simulators then charge each packet its time on the wire (``wire_time="clock"``),
     so a run's rig time is motion + polling + wire time + settle + exposure, independent of the
     host's load. ``"scaled"`` runs at ``time_scale`` × host time (external clients).
     """
     return SteppedClock() if rig.sim_clock == "stepped" else SimClock(rig.time_scale)
-
-
-class WireTimed:
-    """Mixin for a :class:`SimServoBus`: its traffic costs its time on the wire on the clock.
-
-    Each instruction advances the clock by its bytes at the bus baud rate (10 bits per byte)
-    before the servos act on it, and each status reply by the servo's Return Delay Time plus
-    its bytes, before the reply is written to the pty; replies are not delayed in host time.
-    Sync writes thus cost their wire time too, like on a real half-duplex bus. Meant for a
-    :class:`SteppedClock` (on a scaled clock use ``SimServoBus(wire_time=True)``).
-    """
-
-    baud: int
-    clock: SimClock
-    servos: dict[int, Any]
-
-    def _schedule(self, pkt: Packet, now: float, pending: deque[tuple[float, bytes]]) -> None:
-        byte_s = 10.0 / self.baud
-        self.clock.advance((10 + len(pkt.params)) * byte_s)
-        before = len(pending)
-        super()._schedule(pkt, now, pending)  # type: ignore[misc]
-        spent = 0.0
-        for k in range(before, len(pending)):
-            raw = pending[k][1]
-            servo = self.servos.get(raw[4]) if len(raw) > 4 else None
-            spent += len(raw) * byte_s + (servo.return_delay_s if servo is not None else 0.0)
-        if spent:
-            self.clock.advance(spent)
-
-
-def sim_bus_class(clock: SimClock) -> type[SimServoBus]:
-    """:class:`SimServoBus` (looked up when called), :class:`WireTimed` on a stepped clock."""
-    if isinstance(clock, SteppedClock):
-        return type("WireTimedSimBus", (WireTimed, SimServoBus), {})
-    return SimServoBus
 
 
 # ---------------------------------------------------------------------- servos
@@ -342,10 +305,10 @@ def start_simulated_buses(
             if not bus_cfg.simulated:
                 continue
             on_bus = [a for a in rig.axes.values() if a.bus == name]
-            kind = sim_bus_class(clock)
-            sim = kind(
+            sim = SimServoBus(
                 [a.servo_id for a in on_bus], baud=bus_cfg.baud, clock=clock,
                 faults=list(sim_faults), seed=seed, strict_baud=True,
+                wire_time="clock" if isinstance(clock, SteppedClock) else False,
                 positions={a.servo_id: make_axis(a).deg_to_ticks(park[a.name]) for a in on_bus},
             )
             sim.start()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.devices import make_clock, open_servos, sim_bus_class
+from acquisition.devices import make_clock, open_servos
 from acquisition.planner import Planner
 from acquisition.rig import MOTION_POLL_S, load_rig, move_bus_time_s, sync_read_s
 from drivers.dynamixel import Axis, MotionController, ServoBus
@@ -73,15 +73,18 @@ def test_rig_file_chooses_the_clock(tmp_path: Path) -> None:
     scaled = load_rig(rig_with(tmp_path, 'time_scale = 4.0\nclock = "scaled"'))
     clock = make_clock(scaled)
     assert type(clock) is SimClock and clock.time_scale == 4.0
-    assert sim_bus_class(clock) is SimServoBus
-    assert issubclass(sim_bus_class(SteppedClock()), SimServoBus)
+    # Only a stepped rig charges wire time to its clock; a scaled one leaves it off.
+    for chosen, wire_time in ((rig, "clock"), (scaled, None)):
+        with open_servos(chosen, Planner(chosen), prepare=False) as servos:
+            assert servos.sims
+            assert {sim.wire_time for sim in servos.sims.values()} == {wire_time}
     with pytest.raises(ConfigError, match=r"clock.*'wall'.*stepped, scaled"):
         load_rig(rig_with(tmp_path, 'clock = "wall"'))
 
 
 def test_sync_read_and_write_cost_their_wire_time() -> None:
     clock = SteppedClock()
-    with sim_bus_class(clock)([1, 2, 3], clock=clock) as sim, ServoBus(sim.port, 57600) as bus:
+    with SimServoBus([1, 2, 3], clock=clock, wire_time="clock") as sim, ServoBus(sim.port, 57600) as bus:
         t0 = clock.now()
         bus.read_positions([1, 2, 3])
         instruction, replies = sync_read_s(3, 4, 57600)
@@ -122,7 +125,7 @@ def test_motion_controller_polls_on_a_stepped_clock() -> None:
     clock = SteppedClock()
     axis = Axis(name="a", servo_id=1, zero_tick=2048, direction=1, min_deg=-170, max_deg=170,
                 profile_velocity=100, profile_acceleration=20)
-    with sim_bus_class(clock)([1], clock=clock) as sim, ServoBus(sim.port, 57600) as bus:
+    with SimServoBus([1], clock=clock, wire_time="clock") as sim, ServoBus(sim.port, 57600) as bus:
         motion = MotionController([axis], bus, guard=lambda t: None, sleep=clock.sleep,
                                   monotonic=clock.now, poll_s=0.01)
         motion.apply_profiles()

@@ -37,7 +37,7 @@ from dynamixel_sdk import (
 )
 
 from drivers.errors import ConfigError
-from simulators.clock import SimClock
+from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus, parse_fault
 from simulators.dynamixel.profile import (
     TICKS_PER_S2_PER_ACCELERATION_UNIT,
@@ -279,6 +279,37 @@ def test_wire_time_models_the_baud_rate(clock):
         # 10-byte PING + 14-byte status at 10 bits per byte and 57600 baud ≈ 4.2 ms.
         assert statistics.median(times) > 24 * 10 / 57600
         port.closePort()
+
+
+def test_clock_wire_time_charges_the_simulated_clock():
+    """``wire_time="clock"``: each packet's bytes (10 bits each at the bus baud) and the servo's
+    Return Delay Time advance a stepped clock, the instruction's before the servo acts on it."""
+    clock = SteppedClock()
+    byte_s = 10 / 9600
+    with SimServoBus([1, 2], baud=9600, clock=clock, wire_time="clock") as sim:
+        assert sim.wire_time == "clock"
+        port = open_port(sim.port, 9600)
+        # The servo reads its Realtime Tick (ms) once the 14-byte READ has arrived (14.6 ms).
+        tick, result, _ = PH.read2ByteTxRx(port, 1, 120)
+        assert result == COMM_SUCCESS and tick == 14
+        delay_s = sim.servos[2].return_delay_s
+        assert delay_s == pytest.approx(500e-6)  # factory Return Delay Time 250 × 2 µs
+        t0 = clock.now()
+        assert PH.ping(port, 2)[1] == COMM_SUCCESS  # 10-byte PING, delay, 14-byte status
+        ping_s = 24 * byte_s + delay_s
+        assert clock.now() - t0 == pytest.approx(ping_s, abs=1e-12)
+        # A sync write gets no reply but still costs its 10 + 4 + 2 × (1 + 4) bytes.
+        sync = GroupSyncWrite(port, PH, 116, 4)
+        for sid in (1, 2):
+            assert sync.addParam(sid, [DXL_LOBYTE(DXL_LOWORD(2048)), DXL_HIBYTE(DXL_LOWORD(2048)),
+                                       DXL_LOBYTE(DXL_HIWORD(2048)), DXL_HIBYTE(DXL_HIWORD(2048))])
+        t0 = clock.now()
+        assert sync.txPacket() == COMM_SUCCESS
+        assert PH.ping(port, 2)[1] == COMM_SUCCESS  # processed in order behind the write
+        assert clock.now() - t0 == pytest.approx(24 * byte_s + ping_s, abs=1e-12)
+        port.closePort()
+    with pytest.raises(ConfigError, match="wire_time.*'clock'"):
+        SimServoBus([1], clock=clock, wire_time="wall")  # type: ignore[arg-type]
 
 
 def test_strict_baud_models_a_mismatch(clock):

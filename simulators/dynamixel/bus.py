@@ -10,6 +10,15 @@ wake-up pipe, so shutting down costs microseconds, not a polling timeout.
 A new instruction cancels replies still waiting to be sent (the master has moved on), so a reply
 delayed past the client's timeout never lands in the next transaction.
 
+Wire time (``wire_time``): off by default (fast tests). ``"host"`` (or ``True``) delays each
+reply in host time by the instruction's and the reply's bytes on the wire, for clients on a
+real-time or scaled clock. ``"clock"`` charges them to the shared simulated clock instead, for
+a discrete-event :class:`~simulators.clock.SteppedClock`: every instruction advances the clock
+by its bytes at the bus baud rate *before* the servos act on it (sync writes, which get no
+reply, cost their time too, as on a real half-duplex bus), and every status reply by its
+servo's Return Delay Time plus its bytes (at the servo's baud rate) before it is written to
+the pty. Either way a byte costs 10 bits (start, 8 data, stop).
+
 By default the servos answer whatever baud rate the client sets on the pty (the SDK's example
 programs use other rates than a rig's); ``strict_baud=True`` makes a servo deaf unless the
 client's termios speed equals the servo's Baud Rate register, like a real bus.
@@ -29,6 +38,7 @@ import time
 import tty
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping
+from typing import Literal
 
 from drivers.errors import ConfigError
 from simulators.clock import SimClock
@@ -48,6 +58,25 @@ _TERMIOS_SPEEDS = {
     if hasattr(termios, f"B{rate}")
 }
 _BAUD_INDEX = {rate: index for index, rate in ct.BAUD_RATES.items()}
+
+#: Bits a byte takes on the wire (start bit, 8 data bits, stop bit).
+BITS_PER_BYTE = 10
+
+WireTime = Literal["host", "clock"]
+"""Where wire time is charged: replies delayed in host time, or the simulated clock advanced."""
+
+#: Bytes of a Protocol 2.0 packet besides its parameters (header 4, ID, length 2, instr., CRC 2).
+_PACKET_OVERHEAD = 10
+
+
+def _wire_time_mode(wire_time: bool | str | None) -> WireTime | None:
+    if wire_time is None or wire_time is False:
+        return None
+    if wire_time is True:
+        return "host"
+    if wire_time in ("host", "clock"):
+        return wire_time  # type: ignore[return-value]
+    raise ConfigError(f"wire_time must be False, True, 'host' or 'clock', got {wire_time!r}")
 
 
 class SimServoBus:
@@ -71,8 +100,11 @@ class SimServoBus:
     positions:
         Initial shaft position (ticks) per ID; 2048 (centre) otherwise.
     wire_time:
-        Also delay each reply by the time the instruction and the reply take on a real wire at
-        the servo's baud rate (10 bits per byte), as on a real bus; off by default (fast tests).
+        Charge packets their time on the wire (10 bits per byte): ``"host"`` (or ``True``)
+        delays each reply in host time by the instruction's and its own bytes; ``"clock"``
+        advances ``clock`` by each instruction's bytes at ``baud`` and each reply's Return
+        Delay Time plus bytes (meant for a :class:`~simulators.clock.SteppedClock`; replies
+        are then not delayed for it in host time). Off (``False``) by default: fast tests.
     strict_fault_ids:
         Refuse fault specs naming an ID that is not on this bus. Off by default, so that a rig
         with several buses can hand the same spec list to each; check the IDs against the
@@ -99,7 +131,7 @@ class SimServoBus:
         seed: int = 0,
         strict_baud: bool = False,
         positions: Mapping[int, float] | None = None,
-        wire_time: bool = False,
+        wire_time: bool | WireTime = False,
         strict_fault_ids: bool = False,
     ) -> None:
         id_list = [int(i) for i in ids]
@@ -123,7 +155,8 @@ class SimServoBus:
             raise ConfigError(f"fault specs name servo IDs {unknown} that are not on the bus "
                               f"{sorted(id_list)}")
         self.strict_baud = strict_baud
-        self.wire_time = wire_time
+        self.wire_time: WireTime | None = _wire_time_mode(wire_time)
+        """``"host"``, ``"clock"`` or None (off), see the ``wire_time`` parameter."""
         self._lock = threading.RLock()
         self._rng = random.Random(seed)
         positions = positions or {}
@@ -241,27 +274,35 @@ class SimServoBus:
         except ValueError:
             name = f"0x{pkt.instruction:02X}"
         self.instructions[name if pkt.crc_ok else "BAD_CRC"] += 1
+        host_wire, clock_wire = self.wire_time == "host", self.wire_time == "clock"
+        if clock_wire:  # the servos act once the whole instruction has arrived
+            self.clock.advance((_PACKET_OVERHEAD + len(pkt.params)) * BITS_PER_BYTE / self.baud)
+        spent_s = 0.0  # clock time the replies take (clock wire time)
         with self._lock:
             if self.strict_baud:
                 self._client_baud = self._read_client_baud()
             replies = self._responder.handle(pkt)
             due = now
-            if self.wire_time and replies:
-                due += (10 + len(pkt.params)) * 10 / replies[0][0].baud_rate
+            if host_wire and replies:
+                due += (_PACKET_OVERHEAD + len(pkt.params)) * BITS_PER_BYTE / replies[0][0].baud_rate
             for servo, raw in replies:
                 wf = self._wire[servo]
                 drop = self._rng.random() < wf.drop
                 corrupt = self._rng.random() < wf.corrupt
                 due += servo.return_delay_s + wf.delay_s
-                if self.wire_time:
-                    due += len(raw) * 10 / servo.baud_rate
+                if host_wire:
+                    due += len(raw) * BITS_PER_BYTE / servo.baud_rate
                 if drop:
                     self.stats["dropped"] += 1
                     continue
                 if corrupt:
                     self.stats["corrupted"] += 1
                     raw = raw[:-1] + bytes([raw[-1] ^ 0xFF])
+                if clock_wire:
+                    spent_s += servo.return_delay_s + len(raw) * BITS_PER_BYTE / servo.baud_rate
                 pending.append((due, raw))
+        if spent_s:
+            self.clock.advance(spent_s)
 
     def _flush(self, pending: deque[tuple[float, bytes]]) -> None:
         now = time.monotonic()

@@ -32,7 +32,14 @@ import numpy as np
 
 from calibration.hdr import BracketPolicy, bracket
 from calibration.linearize import NoiseModel
-from drivers.errors import GonioError, HardwareError, SafetyStop, SessionError, StorageError
+from drivers.errors import (
+    CommunicationError,
+    GonioError,
+    HardwareError,
+    SafetyStop,
+    SessionError,
+    StorageError,
+)
 
 from .journal import Journal, StepRecord
 from .kinematics import Pose
@@ -468,7 +475,7 @@ class SessionEngine:
             self._notify_error(exc)
             raise exc from None
         except GonioError as exc:
-            if isinstance(exc, HardwareError) and "gonio resume" not in str(exc):
+            if isinstance(exc, HardwareError | CommunicationError) and "gonio resume" not in str(exc):
                 exc.args = (f"{exc}; then continue with `gonio resume {self.folder.path}`",)
             journal.try_log("error", str(exc), self._current)
             self._notify_error(exc)

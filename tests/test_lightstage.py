@@ -203,6 +203,7 @@ def test_unplugged_widget_stops_cleanly_and_the_session_resumes(
         capture_lightstage(RIG, out, sequences=["all-on"], material=GGX, seed=2,
                            observers=[_UnplugAfter(opened, 40)])
     assert "\n" not in str(err.value) and "USB cable" in str(err.value)
+    assert f"gonio resume {out}" in str(err.value)
     folder = SessionFolder(out)
     with folder.journal(readonly=True) as journal:
         records: list[StepRecord] = list(journal.steps())

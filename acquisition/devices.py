@@ -525,7 +525,7 @@ def open_devices(
     with open_servos(rig, planner, clock=clock, sim_faults=sim_faults, seed=seed,
                      health_limits=health_limits) as servos:
         if rig.camera.driver == "gphoto2":
-            with GPhoto2Camera() as real_camera:
+            with GPhoto2Camera(rig.camera.port) as real_camera:
                 yield RigDevices(rig, servos.motion, real_camera, None, clock, health=servos.health)
             return
         holder = None

@@ -68,6 +68,8 @@ class CameraConfig:
     max_exposure_retries: int = 4
     intrinsics: CameraIntrinsics | None = None
     """Pinhole intrinsics (``[camera.intrinsics]``), needed for image-based measurement."""
+    port: str | None = None
+    """Camera port for real drivers (gphoto2, e.g. "usb:001,004"); None takes the first found."""
 
 
 @dataclass(frozen=True)
@@ -269,7 +271,7 @@ def load_rig(path: str | Path) -> RigConfig:
     light.check_keys({"intensity_w_per_sr", "spot_diameter_m"})
 
     cam = top.section("camera")
-    cam.check_keys({"driver", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
+    cam.check_keys({"driver", "port", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
                     "view_diameter_m", "intrinsics"})
     roi = cam.get("roi", list)
     if len(roi) != 4 or not all(isinstance(v, int) for v in roi) or not (
@@ -284,6 +286,7 @@ def load_rig(path: str | Path) -> RigConfig:
         sensor=cam.get("sensor", dict, {}),
         max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0),
         intrinsics=_parse_intrinsics(cam.section("intrinsics")) if "intrinsics" in cam else None,
+        port=cam.get("port", str, None),
     )
 
     wr = top.section("white_reference", {})

@@ -86,3 +86,10 @@ def test_camera_driver_checks(rig_sim_path: Path, tmp_path: Path, old: str, new:
 
     with pytest.raises(ConfigError, match=match):
         check_camera_driver(load_rig(edited(rig_sim_path, tmp_path, old, new)))
+
+
+def test_camera_port_is_read(rig_sim_path: Path, tmp_path: Path) -> None:
+    rig = load_rig(edited(rig_sim_path, tmp_path, 'driver = "simulated"',
+                          'driver = "simulated"\nport = "usb:001,004"'))
+    assert rig.camera.port == "usb:001,004"
+    assert load_rig(rig_sim_path).camera.port is None

@@ -299,7 +299,7 @@ def _open_hardware(rig: RigConfig, stage: StageConfig,
     with ExitStack() as stack:
         # the camera first, so a missing camera fails before a light is touched; on exit the
         # lights go off first, then the widgets and the camera close
-        camera = stack.enter_context(GPhoto2Camera())
+        camera = stack.enter_context(GPhoto2Camera(rig.camera.port))
         widgets: dict[int, DmxWidget] = {}
         for universe in sorted(stage.ports):
             widget = DmxWidget(stage.ports[universe], settle_s=stage.settle_s, clock=clock)

@@ -41,6 +41,7 @@ from drivers.errors import SessionError
 
 from .journal import StepRecord
 from .kinematics import Pose
+from .plan import PlanSpec
 from .rig import RigConfig
 from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
 from .tables import IsotropicTable
@@ -73,6 +74,21 @@ class Reduction:
     when a calibration bundle with a noise model was used; else None."""
     bundle: Path | None = None
     """The calibration bundle applied, if any."""
+
+
+def session_provenance(folder: SessionFolder, rig: RigConfig, plan: PlanSpec,
+                       **extra: object) -> dict[str, object]:
+    """What a reduced table records about where it came from (session, rig, plan, material,
+    seed, time of reduction) plus ``extra`` entries."""
+    return {
+        "session": str(folder.path.resolve()),
+        "rig": rig.name,
+        "plan": plan.name,
+        "material": folder.info.material,
+        "seed": folder.info.seed,
+        **extra,
+        "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
 
 
 def binning_pose(rec: StepRecord) -> Pose:
@@ -234,15 +250,7 @@ def reduce_session(
     cos_ref = np.cos(np.radians(wr.theta_i))
     table = IsotropicTable(
         plan.table.theta_i_edges, plan.table.theta_r_edges, plan.table.delta_phi_edges,
-        provenance={
-            "session": str(folder.path.resolve()),
-            "rig": rig.name,
-            "plan": plan.name,
-            "material": folder.info.material,
-            "seed": folder.info.seed,
-            "reference_drift_pct": drift,
-            "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        },
+        provenance=session_provenance(folder, rig, plan, reference_drift_pct=drift),
     )
     if cal is not None:
         table.provenance["calibration_bundle"] = str(cal.path.resolve())

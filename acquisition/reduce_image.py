@@ -54,7 +54,7 @@ from .imaging import PixelGeometry, frame_geometry
 from .journal import StepRecord
 from .kinematics import poses_from_directions
 from .merl import write_merl
-from .reduce import Reduction, find_bundle, linearize_with_variance
+from .reduce import Reduction, find_bundle, linearize_with_variance, session_provenance
 from .rig import RigConfig
 from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
 from .tables import IsotropicTable, MerlTable
@@ -243,16 +243,8 @@ def reduce_image_session(
                     if journal.meta(f"{HDR_DONE_META}{g}") is not None}
     n_refs = sum(r.kind == REFERENCE for r in done)
     total = len(sample_frames(done, complete)[:max_frames])
-    provenance = {
-        "session": str(folder.path.resolve()),
-        "rig": rig.name,
-        "plan": plan.name,
-        "material": folder.info.material,
-        "seed": folder.info.seed,
-        "image_based": True,
-        "sample_shape": rig.sample.shape,
-        "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
+    provenance = session_provenance(folder, rig, plan, image_based=True,
+                                    sample_shape=rig.sample.shape)
     if cal is not None:
         provenance["calibration_bundle"] = str(cal.path.resolve())
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,

@@ -35,6 +35,7 @@ from ..imaging import PixelGeometry, frame_geometry
 from ..journal import StepRecord
 from ..kinematics import poses_from_directions
 from ..merl import write_merl
+from ..reduce import session_provenance
 from ..reduce_image import (
     DEFAULT_MIN_COS,
     FrameSamples,
@@ -178,18 +179,9 @@ def reduce_lightstage_session(
     total = sum(r.kind == POSE and light_of(r) is not None for r in records)
     cal = led_calibration(folder.path)
     spread = float(np.nanmax(np.ptp(cal.relative[cal.pixels > 0], axis=0)) * 100.0)
-    provenance = {
-        "session": str(folder.path.resolve()),
-        "rig": rig.name,
-        "plan": plan.name,
-        "material": folder.info.material,
-        "seed": folder.info.seed,
-        "image_based": True,
-        "light_stage": True,
-        "sample_shape": rig.sample.shape,
-        "led_intensity_spread_pct": spread,
-        "reduced_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
+    provenance = session_provenance(folder, rig, plan, image_based=True, light_stage=True,
+                                    sample_shape=rig.sample.shape,
+                                    led_intensity_spread_pct=spread)
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance=provenance)
     merl = MerlTable(dict(provenance))

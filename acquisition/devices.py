@@ -35,6 +35,7 @@ from drivers.dynamixel import (
     ServoBus,
     ServoStatus,
 )
+from drivers.dynamixel.bus import Addr
 from drivers.dynamixel.latency import SYSFS_USB_SERIAL, latency_warning
 from drivers.errors import ConfigError, HardwareError
 from drivers.gphoto2 import GPhoto2Camera
@@ -407,9 +408,26 @@ def open_servos(
             **({"now": clock.now, "sleep": clock.sleep} if clock is not None else {}),
         )
         if prepare:
+            set_low_latency(buses, rig)
             motion.apply_profiles()
             motion.set_torque(True)
         yield ServoRig(rig, planner, axes, buses, motion, health, clock, sims)
+
+
+def set_low_latency(buses: Mapping[str, ServoBus], rig: RigConfig) -> None:
+    """Set every servo's Return Delay Time to 0 (the low-latency setting; factory 500 µs).
+
+    It lives in EEPROM, so it is written only where it differs and only while torque is off
+    (a servo already holding a pose keeps its value until the next cold start).
+    """
+    for name, bus in buses.items():
+        for axis in (a for a in rig.axes.values() if a.bus == name):
+            sid = axis.servo_id
+            if bus.read(sid, Addr.RETURN_DELAY_TIME, 1, signed=False, check_alert=False) == 0:
+                continue
+            torque_on, _ = bus.read_safety([sid])[sid]
+            if not torque_on:
+                bus.set_return_delay([sid], 0)
 
 
 # ---------------------------------------------------------------------- whole rig

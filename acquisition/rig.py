@@ -344,8 +344,9 @@ DEFAULT_BUS_CYCLE_S = 0.03
 """Per-move bus time (s) of a rig without servo buses (a light stage)."""
 MOTION_POLL_S = 0.01
 """Pause (s) between the motion controller's control cycles (``acquisition.devices`` uses it)."""
-RETURN_DELAY_S = 500e-6
-"""An X-series servo's factory Return Delay Time (250 × 2 µs) before each status reply."""
+RETURN_DELAY_S = 0.0
+"""Return Delay Time before each status reply: gonio sets it to 0 when it opens a rig
+(``acquisition.devices.set_low_latency``; the X-series factory value is 250 × 2 µs)."""
 _READ_BYTES = {"status": 84, "safety": 7, "motion": 20}
 """Bytes per servo of the driver's sync reads: health status (64–147), torque and hardware
 error (64–70), goal/moving/velocity/position (116–135)."""

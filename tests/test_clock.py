@@ -87,13 +87,14 @@ def test_sync_read_and_write_cost_their_wire_time() -> None:
     with SimServoBus([1, 2, 3], clock=clock, wire_time="clock") as sim, ServoBus(sim.port, 57600) as bus:
         t0 = clock.now()
         bus.read_positions([1, 2, 3])
-        instruction, replies = sync_read_s(3, 4, 57600)
+        factory_delay_s = 500e-6  # a bare simulator keeps the factory Return Delay Time
+        instruction, replies = sync_read_s(3, 4, 57600, factory_delay_s)
         assert clock.now() - t0 == pytest.approx(instruction + replies, abs=1e-9)
         assert instruction == pytest.approx(17 * BYTE_S) and replies > 3 * 15 * BYTE_S
         t0 = clock.now()
         bus.write_goals({1: 2000, 2: 2048, 3: 2100})  # no reply; the next read waits behind it
         bus.read_positions([1])
-        one = sum(sync_read_s(1, 4, 57600))
+        one = sum(sync_read_s(1, 4, 57600, factory_delay_s))
         assert clock.now() - t0 == pytest.approx((14 + 15) * BYTE_S + one, abs=1e-9)
 
 

@@ -334,3 +334,18 @@ def test_capture_paused_by_a_voltage_dip_gives_the_same_table(
             in err)
     assert "gonio: resuming after" in err
     assert_same_table(out, baseline)
+
+
+def test_opening_a_rig_sets_return_delay_zero(rig_sim_path) -> None:
+    """The low-latency setting: every servo answers with Return Delay Time 0 once opened."""
+    from acquisition.devices import open_servos
+    from acquisition.planner import Planner
+    from acquisition.rig import load_rig
+    from drivers.dynamixel.bus import Addr
+
+    rig = load_rig(rig_sim_path)
+    with open_servos(rig, Planner(rig)) as servos:
+        bus = servos.buses["main"]
+        delays = [bus.read(a.servo_id, Addr.RETURN_DELAY_TIME, 1, signed=False)
+                  for a in rig.axes.values()]
+    assert delays == [0, 0, 0]

@@ -128,7 +128,9 @@ def test_capture_bar_shows_the_time_model_eta(tmp_path: Path, monkeypatch: pytes
     out = tmp_path / "s"
     assert main(["capture", "--rig", str(RIG), "--plan", str(plan_path), "--out", str(out),
                  "--material", "lambert:albedo=0.5"]) == 0
-    err = capsys.readouterr().err
+    captured = capsys.readouterr()
+    err = captured.err
+    assert "poses planned" in captured.out and "estimated" in captured.out  # before moving
     frames = [f for f in err.replace("\r", "\n").splitlines() if f.startswith("capture:")]
     assert frames and all("ETA " in f for f in frames[1:]), frames
     assert "7/7" in frames[-1] and frames[-1].rstrip().endswith("ETA 0:00]")

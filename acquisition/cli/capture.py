@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import sys
+
+from tqdm import tqdm
 
 from acquisition import api
 from acquisition.interrupts import sigint_stops_motion
@@ -41,10 +44,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_reduce)
 
 
+def estimate_line(summary: dict[str, object]) -> str:
+    """One line from a sweep's summary: poses, rejections by reason, estimated rig time."""
+    counts = summary["rejected"]
+    rejected = ", ".join(f"{n} {r}" for r, n in counts.items()) or "none"  # type: ignore[union-attr]
+    minutes = float(summary["estimated_s"]) / 60  # type: ignore[arg-type]
+    return (f"{summary['poses']} poses planned (rejected: {rejected}); "
+            f"estimated {minutes:.1f} min of rig time")
+
+
 def print_estimate(sweep: api.Sweep) -> None:
-    rejected = ", ".join(f"{n} {r}" for r, n in sweep.rejected_counts().items()) or "none"
-    print(f"{len(sweep.steps)} poses planned (rejected: {rejected}); "
-          f"estimated {sweep.estimated_s / 60:.1f} min of rig time")
+    print(estimate_line(sweep.summary()))
 
 
 def _finish(result: api.CaptureResult) -> int:
@@ -54,19 +64,25 @@ def _finish(result: api.CaptureResult) -> int:
     return 0
 
 
-def eta_from_time_model(bar: StepBar) -> api.OnOpen:
-    """``on_open`` hook: the bar's ETA from the planner's per-step predictions."""
+def eta_from_time_model(bar: StepBar, announce: bool = False) -> api.OnOpen:
+    """``on_open`` hook: the bar's ETA from the planner's per-step predictions; with
+    ``announce``, first print the plan's estimate (the devices are open, nothing has moved)."""
     def start(folder: api.SessionFolder, _device_time_s: float | None) -> None:
         bar.start_eta(api.step_durations(folder))
+        if announce:
+            with folder.journal() as journal:
+                summary = journal.meta("estimate")
+            if summary:
+                tqdm.write(estimate_line(summary), file=sys.stdout)
     return start
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    print_estimate(api.plan_sweep(args.plan, args.rig))
     with operator_output(), sigint_stops_motion(), step_bar("capture") as bar:
         result = api.capture(args.rig, args.plan, args.out, material=args.material,
                              seed=args.seed, sim_faults=args.sim_fault, progress=bar,
-                             calibration=args.calibration, on_open=eta_from_time_model(bar))
+                             calibration=args.calibration,
+                             on_open=eta_from_time_model(bar, announce=True))
     return _finish(result)
 
 

@@ -40,9 +40,10 @@ def run_demo(
 ) -> DemoResult:
     """Run the whole pipeline on the simulated rig into a new folder under ``out_root``."""
     t0 = time.monotonic()
-    estimate = api.plan_sweep(plan, rig).estimated_s
     session = Path(out_root) / time.strftime("session-%Y%m%d-%H%M%S")
     result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress)
+    with result.session.journal() as journal:
+        estimate = float(journal.meta("estimate")["estimated_s"])
     reduction = api.reduce(session, session / "brdf.h5")
     truth = truth_table(session)
     plot = plot_slices(reduction.table, truth, session / "brdf-slices.png",

@@ -340,6 +340,10 @@ def _or_opt_candidates(tour: _Tour, e: np.ndarray, nbr: np.ndarray, active: np.n
             np.concatenate(revs))
 
 
+STALL_ROUNDS = 4
+"""Local-search rounds without a lower tour cost before the search stops."""
+
+
 def local_search(tour: _Tour, nbr: np.ndarray, deadline: float, max_batch: int = 4000,
                  active: np.ndarray | None = None) -> None:
     """Apply improving 2-opt / Or-opt moves in batches until none is left or time is up.
@@ -347,7 +351,15 @@ def local_search(tour: _Tour, nbr: np.ndarray, deadline: float, max_batch: int =
     ``active`` limits the first round to moves around these pose nodes (default: all)."""
     n = tour.n
     active = np.arange(n) if active is None else np.asarray(active, dtype=np.int64)
+    best, stalled = tour.motion_s(), 0
     while len(active) and time.monotonic() < deadline:
+        # Batched moves are chosen on estimated gains; stop once rounds stop paying (moves
+        # undoing each other, or only unsafe ones left) instead of cycling until the deadline.
+        cost = tour.motion_s()
+        stalled = stalled + 1 if cost >= best - _EPS else 0
+        best = min(best, cost)
+        if stalled >= STALL_ROUNDS:
+            break
         e = tour.edge_costs()
         g2, i2, j2 = _two_opt_candidates(tour, e, nbr, active)
         go, so, lo_, qo, ro = _or_opt_candidates(tour, e, nbr, active)

@@ -38,7 +38,7 @@ one frame's samples are held at any time.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -207,6 +207,22 @@ def iter_session_samples(
         yield frame_samples(image, geo, cal, rec.step, min_cos)
 
 
+def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: MerlTable,
+               progress: Callable[[int, int], None] | None, total: int) -> tuple[int, int]:
+    """Bin each frame's per-pixel samples into both tables, one frame at a time (memory does
+    not grow with the session); returns (samples, frames) binned."""
+    samples = count = 0
+    for fs in frames:
+        merl.add_vectors(fs.wi, fs.wo, fs.brdf)
+        angles = poses_from_directions(fs.wi, fs.wo)
+        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
+        samples += fs.count
+        count += 1
+        if progress:
+            progress(count, total)
+    return samples, count
+
+
 def reduce_image_session(
     session_dir: str | Path,
     progress: Callable[[int, int], None] | None = None,
@@ -251,16 +267,10 @@ def reduce_image_session(
                            plan.table.delta_phi_edges, provenance=provenance)
     merl = MerlTable(provenance)
     drift: list[float] = []
-    samples = frames = 0
-    for fs in iter_session_samples(folder.path, min_cos=min_cos, max_frames=max_frames,
-                                   drift=drift, bundle=cal):
-        merl.add_vectors(fs.wi, fs.wo, fs.brdf)
-        angles = poses_from_directions(fs.wi, fs.wo)
-        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
-        samples += fs.count
-        frames += 1
-        if progress:
-            progress(frames, total)
+    samples, frames = bin_frames(
+        iter_session_samples(folder.path, min_cos=min_cos, max_frames=max_frames,
+                             drift=drift, bundle=cal),
+        table, merl, progress, total)
     for t in (table, merl):
         t.provenance["reference_drift_pct"] = drift[0]
     if merl_path is not None:

@@ -33,13 +33,13 @@ from drivers.errors import SessionError
 
 from ..imaging import PixelGeometry, frame_geometry
 from ..journal import StepRecord
-from ..kinematics import poses_from_directions
 from ..merl import write_merl
 from ..reduce import session_provenance
 from ..reduce_image import (
     DEFAULT_MIN_COS,
     FrameSamples,
     ImageReduction,
+    bin_frames,
     frame_samples,
     white_calibration,
 )
@@ -185,15 +185,9 @@ def reduce_lightstage_session(
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance=provenance)
     merl = MerlTable(dict(provenance))
-    samples = frames = 0
-    for fs in iter_lightstage_samples(folder.path, min_cos=min_cos, calibration=cal):
-        merl.add_vectors(fs.wi, fs.wo, fs.brdf)
-        angles = poses_from_directions(fs.wi, fs.wo)
-        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
-        samples += fs.count
-        frames += 1
-        if progress:
-            progress(frames, total)
+    samples, frames = bin_frames(
+        iter_lightstage_samples(folder.path, min_cos=min_cos, calibration=cal),
+        table, merl, progress, total)
     if merl_path is not None:
         write_merl(merl_path, merl)
     return ImageReduction(table=table, frames=frames, references=int((cal.pixels > 0).sum()),

@@ -9,51 +9,16 @@ import types
 from pathlib import Path
 
 import pytest
+from gphoto2_standin import Choice, Config, StandInError, stand_in_module
 
 from drivers.camera import Camera, CameraError
 from drivers.gphoto2 import GPhoto2Camera, nearest_choice, parse_shutter
 
-
-class FakeError(Exception):
-    def __init__(self, code: int) -> None:
-        super().__init__(f"code {code}")
-        self.code = code
-
-
-class Widget:
-    def __init__(self, choices: list[str], value: str) -> None:
-        self.choices, self.value = choices, value
-
-    def count_choices(self) -> int:
-        return len(self.choices)
-
-    def get_choice(self, i: int) -> str:
-        return self.choices[i]
-
-    def set_value(self, v: str) -> None:
-        assert v in self.choices
-        self.value = v
-
-    def get_value(self) -> str:
-        return self.value
-
-
-class Config:
-    def __init__(self, widgets: dict[str, Widget]) -> None:
-        self.widgets = widgets
-
-    def get_child_by_name(self, name: str) -> Widget:
-        if name not in self.widgets:
-            raise FakeError(-2)
-        return self.widgets[name]
+FakeError = StandInError
+Widget = Choice
 
 
 def fake_module(*, present: bool = True, hang: threading.Event | None = None) -> types.ModuleType:
-    gp = types.ModuleType("gphoto2")
-    gp.GPhoto2Error = FakeError
-    gp.GP_ERROR_MODEL_NOT_FOUND = -105
-    gp.GP_CAPTURE_IMAGE = 0
-    gp.GP_FILE_TYPE_NORMAL = 1
     state: dict[str, object] = {}
 
     class FakeCamera:
@@ -86,7 +51,7 @@ def fake_module(*, present: bool = True, hang: threading.Event | None = None) ->
         def exit(self) -> None:
             state["closed"] = True
 
-    gp.Camera = FakeCamera
+    gp = stand_in_module(FakeCamera)
     gp.state = state
     return gp
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gphoto2_standin import Choice, Config, stand_in_module
 
 from acquisition.lightstage.capture import capture_lightstage, resume_lightstage
 from acquisition.lightstage.config import stage_config
@@ -57,51 +58,18 @@ class Plugged:
         self.sim.sim_unplug()
 
 
-class _Choice:
-    def __init__(self, choices: list[str], value: str) -> None:
-        self.choices, self.value = choices, value
-
-    def count_choices(self) -> int:
-        return len(self.choices)
-
-    def get_choice(self, i: int) -> str:
-        return self.choices[i]
-
-    def set_value(self, v: str) -> None:
-        self.value = v
-
-    def get_value(self) -> str:
-        return self.value
-
-
 def stand_in_gphoto2(plugged: Plugged) -> types.ModuleType:
     """A ``gphoto2`` module whose camera exposes for the set shutter speed and writes a DNG whose
     signal is the number of LEDs the widget was outputting (recorded in ``gp.shots``)."""
-    gp = types.ModuleType("gphoto2")
+    shots: list[tuple[float, float, list[bytes]]] = []
 
-    class GPhoto2Error(Exception):
-        def __init__(self, code: int) -> None:
-            super().__init__(f"code {code}")
-            self.code = code
-
-    gp.GPhoto2Error = GPhoto2Error
-    gp.GP_CAPTURE_IMAGE, gp.GP_FILE_TYPE_NORMAL = 0, 1
-    gp.shots = []
-    gp.closed = 0
-
-    class Config:
-        def __init__(self) -> None:
-            self.widgets = {"shutterspeed": _Choice(["1/250", "1/100", "1/50"], "1/250"),
-                            "iso": _Choice(["100", "200"], "200")}
-
-        def get_child_by_name(self, name: str) -> _Choice:
-            if name not in self.widgets:
-                raise GPhoto2Error(-2)
-            return self.widgets[name]
+    def settings() -> Config:
+        return Config({"shutterspeed": Choice(["1/250", "1/100", "1/50"], "1/250"),
+                       "iso": Choice(["100", "200"], "200")})
 
     class Camera:
         def __init__(self) -> None:
-            self.config = Config()
+            self.config = settings()
 
         def init(self) -> None:
             pass
@@ -119,9 +87,9 @@ def stand_in_gphoto2(plugged: Plugged) -> types.ModuleType:
             time.sleep(exposure)
             t1 = time.monotonic()
             shown = plugged.sim.sim_states_during(t0, t1)
-            gp.shots.append((t0, t1, shown))
+            shots.append((t0, t1, shown))
             lit = sum(shown[-1]) / 255.0
-            name = f"IMG_{len(gp.shots):04d}.DNG"
+            name = f"IMG_{len(shots):04d}.DNG"
             self.pending = (name, lit, exposure)
             return types.SimpleNamespace(folder="/DCIM/100CANON", name=name)
 
@@ -135,7 +103,9 @@ def stand_in_gphoto2(plugged: Plugged) -> types.ModuleType:
         def exit(self) -> None:
             gp.closed += 1
 
-    gp.Camera = Camera
+    gp = stand_in_module(Camera)
+    gp.shots = shots
+    gp.closed = 0
     return gp
 
 

@@ -14,21 +14,20 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import acquisition.merl  # noqa: F401  (registers the merl:PATH material)
+import acquisition.formats.merl  # noqa: F401  (registers the merl:PATH material)
+from acquisition.config.plan import PlanSpec, load_plan
+from acquisition.config.rig import RigConfig, load_rig
+from acquisition.devices.rig import RigDevices, open_devices
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner, Sweep  # noqa: F401  (re-exported)
+from acquisition.planning.timing import TimeModel
+from acquisition.reduction.point import Reduction, reduce_session
+from acquisition.session.engine import CaptureEngine, SessionEngine, SessionFolder, create_session
+from acquisition.session.journal import StepRecord
+from acquisition.session.observers import Observer
+from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from drivers.errors import SessionError
 from simulators.materials import material_from_spec
-
-from .devices import RigDevices, open_devices
-from .journal import StepRecord
-from .kinematics import Pose
-from .observers import Observer
-from .plan import PlanSpec, load_plan
-from .planner import Planner, Sweep  # noqa: F401  (re-exported)
-from .reduce import Reduction, reduce_session
-from .rig import RigConfig, load_rig
-from .session import CaptureEngine, SessionEngine, SessionFolder, create_session
-from .steps import CUSTOM, Step, count_rows, pose_steps
-from .timing import TimeModel
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 
@@ -174,10 +173,10 @@ def resume(
 
     ``on_open`` as for :func:`capture` (gonio sessions only).
     """
-    from .lightstage.reduce import is_lightstage_session
+    from acquisition.lightstage.reduce import is_lightstage_session
 
     if is_lightstage_session(session_dir):
-        from .lightstage.capture import resume_lightstage
+        from acquisition.lightstage.capture import resume_lightstage
 
         return resume_lightstage(session_dir, progress=progress, observers=observers)  # type: ignore[return-value]
     return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
@@ -187,7 +186,7 @@ def resume(
 class ScriptedSession:
     """An open session with its devices, running plans of step records.
 
-    Obtain one from :func:`scripted_session`. See :mod:`acquisition.steps` for the records.
+    Obtain one from :func:`scripted_session`. See :mod:`acquisition.session.steps` for the records.
     """
 
     def __init__(self, folder: SessionFolder, devices: RigDevices, planner: Planner) -> None:
@@ -229,7 +228,7 @@ class ScriptedSession:
         """The standard sweep (references, move/expose/checkpoint per pose) as step records.
 
         ``poses`` defaults to the plan file's; unsafe poses are dropped by the planner.
-        Keyword arguments go to :func:`acquisition.steps.sweep_steps`.
+        Keyword arguments go to :func:`acquisition.session.steps.sweep_steps`.
         """
         chosen = self.plan.poses() if poses is None else list(poses)
         kwargs.setdefault("reference_every", self.plan.capture.reference_every)
@@ -277,7 +276,7 @@ def reduce(
     progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
     """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5)."""
-    from .lightstage.reduce import is_lightstage_session, reduce_lightstage_session
+    from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
 
     if is_lightstage_session(session_dir):
         result: Reduction = reduce_lightstage_session(session_dir, progress)

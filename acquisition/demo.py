@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import api
-from .plots import plot_slices
-from .truth import relative_errors, truth_table
+from acquisition import api
+from acquisition.analysis.plots import plot_slices
+from acquisition.simworld.truth import relative_errors, truth_table
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

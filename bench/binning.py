@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.halfdiff import MERL_BINS, halfdiff_rad_from_vectors, merl_flat_index_rad
+from acquisition.geometry.halfdiff import MERL_BINS, halfdiff_rad_from_vectors, merl_flat_index_rad
 from acquisition.tables import MerlTable
 
 N_SAMPLES = 10_000_000

@@ -32,7 +32,7 @@ BASELINE_FRAMES = 25
 
 _CHILD = """
 import json, sys
-from acquisition.reduce_image import reduce_image_session
+from acquisition.reduction.image import reduce_image_session
 def status_kb(field):
     with open("/proc/self/status") as fh:
         return next(int(line.split()[1]) for line in fh if line.startswith(field + ":"))

@@ -25,11 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition import api, sampling
-from acquisition.kinematics import Pose
-from acquisition.plan import load_plan
-from acquisition.planner import Planner
-from acquisition.rig import load_rig
+from acquisition import api
+from acquisition.config.plan import load_plan
+from acquisition.config.rig import load_rig
+from acquisition.geometry import sampling
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner
 
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "examples" / "rig-sim.toml"

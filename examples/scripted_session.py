@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from acquisition import api
-from acquisition.kinematics import Pose
-from acquisition.observers import LiveReduction, LogObserver
-from acquisition.planner import Rejection
-from acquisition.steps import Checkpoint, Expose, Move, Reference, Step
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Rejection
+from acquisition.session.observers import LiveReduction, LogObserver
+from acquisition.session.steps import Checkpoint, Expose, Move, Reference, Step
 
 HERE = Path(__file__).resolve().parent
 RIG = HERE / "rig-sim.toml"

@@ -11,7 +11,7 @@ import threading
 import numpy as np
 import pytest
 
-from acquisition.halfdiff import (
+from acquisition.geometry.halfdiff import (
     MERL_BINS,
     flat_index_unclamped_into,
     halfdiff_rad_from_vectors,

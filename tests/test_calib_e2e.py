@@ -12,7 +12,7 @@ from conftest import SMALL_PLAN
 
 from acquisition import api
 from acquisition.cli import main
-from acquisition.reduce import reduce_session
+from acquisition.reduction.point import reduce_session
 from calibration.bundle import CalibrationBundle
 from calibration.white import WhiteReference
 
@@ -77,7 +77,7 @@ def test_grey_lambert_absolute_within_one_percent(calibrated: dict[str, Path]) -
 
 
 def test_rough_ggx_within_three_percent(calibrated: dict[str, Path]) -> None:
-    from acquisition.truth import relative_errors, truth_table
+    from acquisition.simworld.truth import relative_errors, truth_table
 
     out = calibrated["root"] / "rough-ggx"
     api.capture(calibrated["rig"], calibrated["plan"], out,
@@ -131,8 +131,8 @@ def test_two_percent_light_drift_is_corrected(
 
 
 def test_light_drift_keys_are_checked(rig_sim_text: str, tmp_path: Path) -> None:
-    from acquisition.rig import load_rig
-    from acquisition.simscene import LightDrift
+    from acquisition.config.rig import load_rig
+    from acquisition.simworld.scene import LightDrift
     from drivers.errors import ConfigError
 
     rig = tmp_path / "rig.toml"
@@ -175,7 +175,7 @@ def test_image_based_reduction_applies_the_bundle(tmp_path: Path) -> None:
     # off-centre samples read low; with it every pixel is corrected alike.
     from test_image_capture import plan_file, small_rig
 
-    from acquisition.reduce_image import reduce_image_session
+    from acquisition.reduction.image import reduce_image_session
 
     rig = small_rig(tmp_path, "flat")
     rig.write_text(rig.read_text().replace(

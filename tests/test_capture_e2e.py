@@ -11,10 +11,10 @@ from conftest import SMALL_PLAN, grid_plan_text
 
 from acquisition import api
 from acquisition.cli import main
-from acquisition.journal import Journal
-from acquisition.session import JOURNAL_FILE
+from acquisition.session.engine import JOURNAL_FILE
+from acquisition.session.journal import Journal
+from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable
-from acquisition.truth import relative_errors, truth_table
 from drivers.errors import SafetyStop, SessionError
 
 SPECULAR_PLAN = grid_plan_text((20, 60, 20), (20, 60, 20), (90, 180, 45), name="specular")
@@ -129,8 +129,8 @@ def test_pose_outside_limits_is_refused(
 def test_scripted_dark_frames_switch_the_simulated_lamp(rig_sim_path: Path, small_plan: Path,
                                                          tmp_path: Path) -> None:
     """A Dark step exposes with the lamp off; the reduction ignores it as a sample."""
-    from acquisition.kinematics import Pose
-    from acquisition.steps import Dark, Expose, Move, Reference
+    from acquisition.geometry.kinematics import Pose
+    from acquisition.session.steps import Dark, Expose, Move, Reference
     from calibration.linearize import linearize, roi_mean
     from calibration.raw import load_raw
 

@@ -2,7 +2,7 @@
 
 A stepped clock moves only in ``sleep``/``advance``; on it the servo simulator charges every
 packet its 57600-baud time on the wire, so a sync read or write costs exactly what
-:func:`acquisition.rig.sync_read_s` says, and a move costs its profile plus polling.
+:func:`acquisition.config.rig.sync_read_s` says, and a move costs its profile plus polling.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.devices import make_clock, open_servos
-from acquisition.planner import Planner
-from acquisition.rig import MOTION_POLL_S, load_rig, move_bus_time_s, sync_read_s
+from acquisition.config.rig import MOTION_POLL_S, load_rig, move_bus_time_s, sync_read_s
+from acquisition.devices.rig import make_clock, open_servos
+from acquisition.planning.planner import Planner
 from drivers.dynamixel import Axis, MotionController, ServoBus
 from drivers.errors import ConfigError
 from simulators.clock import SimClock, SteppedClock

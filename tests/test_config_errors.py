@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.plan import load_plan
-from acquisition.rig import load_rig
+from acquisition.config.plan import load_plan
+from acquisition.config.rig import load_rig
 from drivers.errors import ConfigError, MaterialError
 from simulators.materials import material_from_spec
 
@@ -82,7 +82,7 @@ def test_material_errors(spec: str, match: str) -> None:
 )
 def test_camera_driver_checks(rig_sim_path: Path, tmp_path: Path, old: str, new: str,
                               match: str) -> None:
-    from acquisition.devices import check_camera_driver
+    from acquisition.devices.rig import check_camera_driver
 
     with pytest.raises(ConfigError, match=match):
         check_camera_driver(load_rig(edited(rig_sim_path, tmp_path, old, new)))

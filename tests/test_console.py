@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-import acquisition.devices as devices_mod
+import acquisition.devices.rig as devices_mod
 from acquisition.cli import main
-from acquisition.console import AxisStatus, format_status, open_console, scan_port
-from acquisition.devices import LatencyWarning, ServoHealthError
+from acquisition.devices.console import AxisStatus, format_status, open_console, scan_port
+from acquisition.devices.rig import LatencyWarning, ServoHealthError
 from drivers.dynamixel import OverloadError, TorqueOffError
 from drivers.errors import CollisionError, CommunicationError, ConfigError, LimitError
 from simulators.dynamixel import SimServoBus

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from acquisition.dome import (
+from acquisition.lightstage.dome import (
     geodesic_directions,
     geodesic_sphere,
     load_dome,

@@ -6,7 +6,7 @@ import numpy as np
 from conftest import EXAMPLES
 
 from acquisition import api
-from acquisition.plan import load_plan
+from acquisition.config.plan import load_plan
 from acquisition.tables import IsotropicTable
 
 

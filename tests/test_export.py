@@ -11,8 +11,8 @@ import OpenImageIO as oiio
 import pytest
 
 from acquisition.cli import main
-from acquisition.halfdiff import MERL_BINS
-from acquisition.merl import MERL_FILE_BYTES, read_merl, write_merl
+from acquisition.formats.merl import MERL_FILE_BYTES, read_merl, write_merl
+from acquisition.geometry.halfdiff import MERL_BINS
 from acquisition.tables import IsotropicTable
 from drivers.errors import ConfigError
 
@@ -112,7 +112,7 @@ def test_bad_inputs_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
     assert main(["export", str(tmp_path / "none.h5"), "--format", "csv"]) != 0
     err = capsys.readouterr().err
     assert "does not exist" in err and err.count("\n") == 1
-    from acquisition.export import export_table
+    from acquisition.formats.export import export_table
 
     with pytest.raises(ConfigError, match="unknown export format"):
         export_table(tmp_path / "none.h5", "png", None)

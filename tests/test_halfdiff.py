@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acquisition.halfdiff import (
+from acquisition.geometry.halfdiff import (
     MERL_SHAPE,
     angles_from_halfdiff,
     halfdiff_from_angles,

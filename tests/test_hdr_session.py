@@ -13,11 +13,11 @@ import pytest
 from conftest import grid_plan_text
 
 from acquisition import api
-from acquisition.journal import Journal
-from acquisition.observers import Observer
-from acquisition.reduce import reduce_session
-from acquisition.session import HDR_DONE_META, JOURNAL_FILE, POSE, StepEvent, hdr_group
-from acquisition.truth import truth_table
+from acquisition.reduction.point import reduce_session
+from acquisition.session.engine import HDR_DONE_META, JOURNAL_FILE, POSE, StepEvent, hdr_group
+from acquisition.session.journal import Journal
+from acquisition.session.observers import Observer
+from acquisition.simworld.truth import truth_table
 from drivers.errors import SafetyStop
 
 SHINY = "ggx:albedo=0.02,alpha=0.06,f0=0.9"

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from acquisition import api
-from acquisition.halfdiff import merl_bin_angles, merl_bin_edges, vectors_from_halfdiff
-from acquisition.merl import read_merl, write_merl
-from acquisition.reduce_image import iter_session_samples, reduce_image_session
+from acquisition.formats.merl import read_merl, write_merl
+from acquisition.geometry.halfdiff import merl_bin_angles, merl_bin_edges, vectors_from_halfdiff
+from acquisition.reduction.image import iter_session_samples, reduce_image_session
 from acquisition.tables import MerlTable
 from drivers.errors import ConfigError, SessionError
 from simulators.materials import GGX, material_from_spec

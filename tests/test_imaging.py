@@ -10,17 +10,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acquisition.halfdiff import merl_bin_angles, vectors_from_halfdiff
-from acquisition.imaging import (
+from acquisition.config.rig import SampleConfig, load_rig
+from acquisition.formats.merl import write_merl
+from acquisition.geometry.halfdiff import merl_bin_angles, vectors_from_halfdiff
+from acquisition.reduction.imaging import (
     PinholeCamera,
     frame_geometry,
     intersect_sphere,
     pixel_geometry,
     tangent_frames,
 )
-from acquisition.merl import write_merl
-from acquisition.rig import SampleConfig, load_rig
-from acquisition.simscene import render_image
+from acquisition.simworld.scene import render_image
 from drivers.errors import ConfigError
 from simulators.materials import GGX, Lambert, material_from_spec
 

@@ -10,8 +10,8 @@ from conftest import TINY_PLAN_ARGS, grid_plan_text
 
 from acquisition import api
 from acquisition.cli import main
-from acquisition.merl import write_merl
-from acquisition.session import session_status
+from acquisition.formats.merl import write_merl
+from acquisition.session.engine import session_status
 from acquisition.tables import IsotropicTable
 from drivers.errors import SafetyStop
 

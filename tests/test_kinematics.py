@@ -7,7 +7,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from acquisition.kinematics import (
+from acquisition.geometry.kinematics import (
     CoaxialArms,
     JointLimits,
     LightStage,

@@ -14,17 +14,17 @@ import pytest
 
 from acquisition import api
 from acquisition.cli import main
-from acquisition.journal import StepRecord
-from acquisition.kinematics import poses_from_directions
+from acquisition.config.rig import load_rig
+from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.lightstage import capture as capture_mod
 from acquisition.lightstage.capture import capture_lightstage, resume_lightstage
 from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.devices import LightStageDevices, open_lightstage
 from acquisition.lightstage.reduce import iter_lightstage_samples, led_calibration
 from acquisition.lightstage.sequences import SEQUENCES, capture_steps, sequence_frames
-from acquisition.observers import Observer
-from acquisition.rig import load_rig
-from acquisition.session import SessionFolder, StepEvent
+from acquisition.session.engine import SessionFolder, StepEvent
+from acquisition.session.journal import StepRecord
+from acquisition.session.observers import Observer
 from acquisition.tables import IsotropicTable
 from drivers.errors import CommunicationError, ConfigError, HardwareError
 from drivers.lights import DutyCycleLimit, DutyPolicy
@@ -242,7 +242,7 @@ def test_cli_capture_prints_estimate_and_errors(tmp_path: Path,
 
 
 def test_resume_refuses_a_session_that_is_not_a_light_stage_one(tmp_path: Path) -> None:
-    from acquisition.session import create_session
+    from acquisition.session.engine import create_session
 
     create_session(tmp_path / "g", ROOT / "examples" / "rig-sim.toml",
                    ROOT / "examples" / "plan-quick.toml", material=GGX)

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 from gphoto2_standin import Choice, Config, stand_in_module
 
+from acquisition.config.rig import load_rig
 from acquisition.lightstage.capture import capture_lightstage, resume_lightstage
 from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.devices import exposure_interval, open_lightstage
 from acquisition.lightstage.reduce import led_calibration
-from acquisition.observers import Observer
-from acquisition.rig import load_rig
-from acquisition.session import SessionFolder, StepEvent
+from acquisition.session.engine import SessionFolder, StepEvent
+from acquisition.session.observers import Observer
 from drivers.camera import CaptureInfo
 from drivers.errors import CommunicationError, ConfigError, HardwareError
 from drivers.gphoto2 import parse_shutter

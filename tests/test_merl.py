@@ -1,7 +1,7 @@
 """MERL file format, lookup and table, checked against an independent reference reader.
 
 The ``ref_*`` functions below re-implement the MERL reference reader (BRDFRead.cpp) in plain
-scalar Python with the ``math`` module, written separately from acquisition.halfdiff/merl.
+scalar Python with the ``math`` module, written separately from acquisition.geometry.halfdiff/merl.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import acquisition.tables.merl_table as merl_table_module
-from acquisition.merl import MERL_FILE_BYTES, MerlMaterial, read_merl, write_merl
+from acquisition.formats.merl import MERL_FILE_BYTES, MerlMaterial, read_merl, write_merl
 from acquisition.tables import MerlTable
 from drivers.errors import ConfigError, MaterialError
 from simulators.materials import Material, directions_from_angles, material_from_spec

@@ -8,8 +8,8 @@ import itertools
 import numpy as np
 import pytest
 
-from acquisition import ordering
-from acquisition.timing import AxisProfile, StepCosts, TimeModel
+from acquisition.planning import ordering
+from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
 
 MODEL = TimeModel(
     {"a": AxisProfile(150.0, 600.0), "b": AxisProfile(150.0, 600.0), "c": AxisProfile(200.0, 400.0)},

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acquisition.kinematics import Pose
-from acquisition.plan import load_plan
-from acquisition.planner import Planner, Reason, Rejection, segment_distance, serpentine
-from acquisition.rig import FootprintConfig, RigConfig, load_rig
-from acquisition.timing import trapezoid_time_s
+from acquisition.config.plan import load_plan
+from acquisition.config.rig import FootprintConfig, RigConfig, load_rig
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner, Reason, Rejection, segment_distance, serpentine
+from acquisition.planning.timing import trapezoid_time_s
 from drivers.errors import CollisionError, LimitError
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

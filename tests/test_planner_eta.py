@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from acquisition import api
-from acquisition.plan import load_plan
-from acquisition.planner import Planner
-from acquisition.rig import load_rig, move_bus_time_s
+from acquisition.config.plan import load_plan
+from acquisition.config.rig import load_rig, move_bus_time_s
+from acquisition.planning.planner import Planner
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -11,12 +11,12 @@ import pytest
 from acquisition import api
 from acquisition.cli import main, progress
 from acquisition.cli.progress import RunEta, format_eta
-from acquisition.journal import StepRecord
-from acquisition.plan import load_plan
-from acquisition.planner import Planner
-from acquisition.rig import load_rig
-from acquisition.steps import CUSTOM, POSE, REFERENCE
-from acquisition.timing import AxisProfile, StepCosts, TimeModel
+from acquisition.config.plan import load_plan
+from acquisition.config.rig import load_rig
+from acquisition.planning.planner import Planner
+from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
+from acquisition.session.journal import StepRecord
+from acquisition.session.steps import CUSTOM, POSE, REFERENCE
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 RIG = EXAMPLES / "rig-sim.toml"

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from acquisition.cli import main
+from acquisition.config.rig import load_rig
 from acquisition.lightstage.capture import capture_lightstage
 from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.envmap import latlong_directions, read_exr, write_exr
 from acquisition.lightstage.field import ReflectanceField, load_field, write_field
 from acquisition.lightstage.relight import light_weights, relight
 from acquisition.lightstage.render import render_environment
-from acquisition.rig import load_rig
-from acquisition.session import SessionFolder
+from acquisition.session.engine import SessionFolder
 from simulators.materials import material_from_spec
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -16,9 +16,9 @@ import pytest
 from conftest import grid_plan_text
 
 from acquisition import api
-from acquisition.journal import Journal
-from acquisition.session import JOURNAL_FILE, frame_name
-from acquisition.storage import TMP_SUFFIX, sha256_file
+from acquisition.session.engine import JOURNAL_FILE, frame_name
+from acquisition.session.journal import Journal
+from acquisition.session.storage import TMP_SUFFIX, sha256_file
 from acquisition.tables import IsotropicTable
 
 PLAN = grid_plan_text((0, 60, 30), (30, 60, 30), (90, 180, 90), reference_every=5)

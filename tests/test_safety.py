@@ -21,13 +21,13 @@ import pytest
 
 from acquisition import api
 from acquisition.cli import main
-from acquisition.console import open_console
-from acquisition.devices import HealthLimits, ServoHealthError, open_devices
-from acquisition.interrupts import EXIT_INTERRUPTED, sigint_stops_motion
-from acquisition.journal import Journal
-from acquisition.planner import Planner
-from acquisition.rig import load_rig
-from acquisition.session import JOURNAL_FILE
+from acquisition.config.rig import load_rig
+from acquisition.devices.console import open_console
+from acquisition.devices.rig import HealthLimits, ServoHealthError, open_devices
+from acquisition.planning.planner import Planner
+from acquisition.session.engine import JOURNAL_FILE
+from acquisition.session.interrupts import EXIT_INTERRUPTED, sigint_stops_motion
+from acquisition.session.journal import Journal
 from acquisition.tables import IsotropicTable
 from drivers.errors import SafetyStop
 from simulators.dynamixel import SimServoBus
@@ -215,7 +215,7 @@ def test_ctrl_c_stops_a_console_move_midway(tmp_path: Path, sims: list[SimServoB
 
 SECOND_PRESS = textwrap.dedent("""
     import sys, time
-    from acquisition.interrupts import sigint_stops_motion
+    from acquisition.session.interrupts import sigint_stops_motion
     with sigint_stops_motion():
         try:
             print("ready", flush=True)
@@ -275,7 +275,7 @@ def test_voltage_dip_pauses_until_back_in_range_with_hysteresis(
     # 9.8 V pauses (< 10.0); 10.1 V is not enough to resume (< 10.3); 12 V is.
     faults = ["voltage:id=1,volts=9.8", "voltage:id=1,volts=10.1,after=8",
               "voltage:id=1,volts=12,after=16"]
-    with caplog.at_level(logging.WARNING, logger="acquisition.devices"), \
+    with caplog.at_level(logging.WARNING, logger="acquisition.devices.rig"), \
             open_sim(EXAMPLES / "rig-sim.toml", faults, HealthLimits(poll_s=1.0)) as dev:
         readback = dev.move_to(TARGET)
     (pause,) = dev.health.pauses
@@ -338,9 +338,9 @@ def test_capture_paused_by_a_voltage_dip_gives_the_same_table(
 
 def test_opening_a_rig_sets_return_delay_zero(rig_sim_path) -> None:
     """The low-latency setting: every servo answers with Return Delay Time 0 once opened."""
-    from acquisition.devices import open_servos
-    from acquisition.planner import Planner
-    from acquisition.rig import load_rig
+    from acquisition.config.rig import load_rig
+    from acquisition.devices.rig import open_servos
+    from acquisition.planning.planner import Planner
     from drivers.dynamixel.bus import Addr
 
     rig = load_rig(rig_sim_path)

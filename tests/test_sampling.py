@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition import sampling
-from acquisition.halfdiff import halfdiff_from_angles
-from acquisition.plan import load_plan
+from acquisition.config.plan import load_plan
+from acquisition.geometry import sampling
+from acquisition.geometry.halfdiff import halfdiff_from_angles
 from drivers.errors import ConfigError
 
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.journal import Journal
-from acquisition.session import JOURNAL_FILE
+from acquisition.session.engine import JOURNAL_FILE
+from acquisition.session.journal import Journal
+from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable
-from acquisition.truth import relative_errors, truth_table
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "scripted_session.py"
 MATERIAL = "ggx:albedo=0.2,alpha=0.15,f0=0.04"

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from acquisition import api
-from acquisition.journal import Journal
-from acquisition.kinematics import Pose
-from acquisition.observers import CallbackObserver, LiveReduction, Observer
-from acquisition.planner import PlannedPose, Sweep
-from acquisition.session import JOURNAL_FILE, SessionEngine, create_session
-from acquisition.steps import (
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import PlannedPose, Sweep
+from acquisition.session.engine import JOURNAL_FILE, SessionEngine, create_session
+from acquisition.session.journal import Journal
+from acquisition.session.observers import CallbackObserver, LiveReduction, Observer
+from acquisition.session.steps import (
     Checkpoint,
     Custom,
     Dark,

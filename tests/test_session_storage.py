@@ -14,8 +14,8 @@ from conftest import TINY_PLAN_ARGS, grid_plan_text
 import simulators.camera
 from acquisition import api
 from acquisition.cli import main
-from acquisition.journal import Journal
-from acquisition.session import JOURNAL_FILE, SessionFolder
+from acquisition.session.engine import JOURNAL_FILE, SessionFolder
+from acquisition.session.journal import Journal
 from drivers.errors import SessionError, StorageError
 
 PLAN = grid_plan_text(*TINY_PLAN_ARGS, name="tiny")

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from acquisition.calibrate import KINDS, calibrate
-
-from .progress import step_bar
+from acquisition.calibrate.radiometric import KINDS, calibrate
+from acquisition.cli.progress import step_bar
 
 
 def register(sub: argparse._SubParsersAction) -> None:

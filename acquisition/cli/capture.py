@@ -8,10 +8,9 @@ import sys
 from tqdm import tqdm
 
 from acquisition import api
-from acquisition.interrupts import sigint_stops_motion
-
-from .console import operator_output
-from .progress import StepBar, step_bar
+from acquisition.cli.console import operator_output
+from acquisition.cli.progress import StepBar, step_bar
+from acquisition.session.interrupts import sigint_stops_motion
 
 
 def add_sim_fault_option(p: argparse.ArgumentParser) -> None:

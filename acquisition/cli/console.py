@@ -1,9 +1,9 @@
 """The operator's console: ``gonio status|scan|jog|move|home|park|torque|reboot``.
 
-Thin over :mod:`acquisition.console`. Every command takes ``--rig``; on a rig file whose bus is
+Thin over :mod:`acquisition.devices.console`. Every command takes ``--rig``; on a rig file whose bus is
 simulated, each command starts a fresh in-process simulator at the park pose (its servos live
 only as long as the command), which checks the rig file and the code paths but keeps no state
-between commands. Moves run under the Ctrl-C handler of :mod:`acquisition.interrupts`.
+between commands. Moves run under the Ctrl-C handler of :mod:`acquisition.session.interrupts`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from acquisition import console as api
-from acquisition.interrupts import sigint_stops_motion
+from acquisition.devices import console as api
+from acquisition.session.interrupts import sigint_stops_motion
 from drivers.dynamixel import COMMON_BAUD_RATES
 from drivers.errors import ConfigError
 
-LOGGERS = ("acquisition.devices",)
+LOGGERS = ("acquisition.devices.rig",)
 """Loggers whose records the CLI shows on stderr (health-guard pauses)."""
 
 
@@ -66,7 +66,7 @@ def _ids(text: str) -> list[int]:
 
 
 def _common(p: argparse.ArgumentParser, rig_required: bool = True) -> None:
-    from .capture import add_sim_fault_option  # capture imports this module
+    from acquisition.cli.capture import add_sim_fault_option  # capture imports this module
 
     p.add_argument("--rig", required=rig_required, help="rig file (TOML)")
     add_sim_fault_option(p)

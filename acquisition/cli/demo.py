@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 
 from acquisition.api import DEFAULT_MATERIAL
+from acquisition.cli.progress import step_bar
 from acquisition.demo import run_demo
-
-from .progress import step_bar
 
 
 def register(sub: argparse._SubParsersAction) -> None:

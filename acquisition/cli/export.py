@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from acquisition.export import ExportFormat, export_table
+from acquisition.formats.export import ExportFormat, export_table
 
 
 def register(sub: argparse._SubParsersAction) -> None:

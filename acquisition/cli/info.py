@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acquisition.export import table_info
-from acquisition.session import session_status
+from acquisition.formats.export import table_info
+from acquisition.session.engine import session_status
 
 
 def register(sub: argparse._SubParsersAction) -> None:

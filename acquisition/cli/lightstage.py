@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acquisition.interrupts import sigint_stops_motion
+from acquisition.cli.console import operator_output
+from acquisition.cli.progress import step_bar
 from acquisition.lightstage.capture import (
     LightStageResult,
     capture_lightstage,
@@ -16,9 +17,7 @@ from acquisition.lightstage.capture import (
 from acquisition.lightstage.field import write_field
 from acquisition.lightstage.relight import relight_files
 from acquisition.lightstage.sequences import SEQUENCES, TimeEstimate
-
-from .console import operator_output
-from .progress import step_bar
+from acquisition.session.interrupts import sigint_stops_motion
 
 FIELD_DIR = "field"
 """Sub-folder of a session where the reflectance field is written."""

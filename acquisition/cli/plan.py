@@ -9,10 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from acquisition import api
-from acquisition.halfdiff import halfdiff_from_angles
-from acquisition.planner import Reason, Sweep
-
-from .capture import print_estimate
+from acquisition.cli.capture import print_estimate
+from acquisition.geometry.halfdiff import halfdiff_from_angles
+from acquisition.planning.planner import Reason, Sweep
 
 
 def register(sub: argparse._SubParsersAction) -> None:

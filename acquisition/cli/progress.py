@@ -16,7 +16,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from acquisition.journal import StepRecord
+from acquisition.session.journal import StepRecord
 
 DISABLE: bool | None = None
 """tqdm's ``disable``: None hides the bars when stderr is not a terminal (tests may force)."""

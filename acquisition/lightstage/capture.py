@@ -1,6 +1,6 @@
 """Light-stage capture into a durable session folder, and resuming it.
 
-The session folder is the one ``gonio capture`` writes (:mod:`acquisition.session`): rig and
+The session folder is the one ``gonio capture`` writes (:mod:`acquisition.session.engine`): rig and
 plan copies, ``session.json``, the SQLite journal and ``frames/step-NNNNNN.dng``. The plan file
 only gives the table bins and capture settings (a default one is written when none is given);
 the steps come from :func:`acquisition.lightstage.sequences.capture_steps`, whose arguments are
@@ -17,17 +17,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from acquisition.config.rig import load_rig
+from acquisition.lightstage.config import StageConfig, stage_config
+from acquisition.lightstage.devices import LightStageDevices, OperatorPrompt, open_lightstage, operator_prompt
+from acquisition.lightstage.sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
+from acquisition.planning.planner import Planner
+from acquisition.session.engine import INFO_FILE, SessionEngine, SessionFolder, create_session
+from acquisition.session.journal import StepRecord
+from acquisition.session.observers import Observer, ProgressObserver
 from drivers.errors import SessionError
 from simulators.materials import material_from_spec
-
-from ..journal import StepRecord
-from ..observers import Observer, ProgressObserver
-from ..planner import Planner
-from ..rig import load_rig
-from ..session import INFO_FILE, SessionEngine, SessionFolder, create_session
-from .config import StageConfig, stage_config
-from .devices import LightStageDevices, OperatorPrompt, open_lightstage, operator_prompt
-from .sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 META_KEY = "lightstage"

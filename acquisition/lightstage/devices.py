@@ -34,6 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.config.rig import RigConfig
+from acquisition.devices.rig import CAMERA_DRIVERS
+from acquisition.lightstage.config import SIM_PORT, StageConfig, stage_config
+from acquisition.lightstage.render import LightImages
+from acquisition.simworld.scene import SampleHolder, white_material
 from drivers.camera import Camera, CaptureInfo
 from drivers.dmx import Clock, DmxWidget, MonotonicClock
 from drivers.errors import ConfigError, HardwareError
@@ -44,12 +49,6 @@ from simulators.clock import SimClock, SteppedClock
 from simulators.dmx import SimDmxWidget
 from simulators.materials import Material
 from simulators.sensor import SensorModel
-
-from ..devices import CAMERA_DRIVERS
-from ..rig import RigConfig
-from ..simscene import SampleHolder, white_material
-from .config import SIM_PORT, StageConfig, stage_config
-from .render import LightImages
 
 OperatorPrompt = Callable[[str], None]
 """Asks the operator to put a target (``"sample"`` or ``"white"``) under the dome; returns
@@ -136,7 +135,7 @@ def fixture_emission(fixture: Fixture, universe: bytes) -> np.ndarray:
 
 
 class LightStageDevices:
-    """An open light stage (implements :class:`acquisition.session.CaptureDevices`).
+    """An open light stage (implements :class:`acquisition.session.engine.CaptureDevices`).
 
     Attributes
     ----------

@@ -25,13 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.lightstage.envmap import read_exr, write_exr
+from acquisition.lightstage.reduce import _done, dark_rate, led_calibration, light_of, load_frame
+from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect
+from acquisition.session.engine import SessionFolder
+from acquisition.session.steps import POSE
 from drivers.errors import SessionError
-
-from ..imaging import PinholeCamera, camera_intrinsics, intersect
-from ..session import SessionFolder
-from ..steps import POSE
-from .envmap import read_exr, write_exr
-from .reduce import _done, dark_rate, led_calibration, light_of, load_frame
 
 UNITS = "sr^-1: radiance per unit normal irradiance from the light"
 FILE_FORMAT = "light-{index:03d}.exr"
@@ -85,7 +84,7 @@ def write_field(session_dir: str | Path, out_dir: str | Path) -> list[Path]:
     cal = led_calibration(folder.path)
     records = _done(folder)
     dark = dark_rate(folder, records)
-    from .config import stage_config
+    from acquisition.lightstage.config import stage_config
 
     stage = stage_config(rig)
     relative = cal.relative

@@ -4,7 +4,7 @@ Per-LED calibration
 -------------------
 LED k's white-target frame (a flat Lambertian plate of reflectance ρ, the rig's
 ``[white_reference]``) gives C_k = K·I_k, camera response times LED intensity, by
-:func:`acquisition.reduce_image.white_calibration` over the region of interest, with each plate
+:func:`acquisition.reduction.image.white_calibration` over the region of interest, with each plate
 pixel's own geometry under that LED. Every LED is therefore calibrated on its own: an LED
 10 % brighter than nominal has a C_k 10 % higher, and dividing by it removes the error.
 
@@ -12,7 +12,7 @@ Sample frames
 -------------
 An OLAT frame of LED k (journal joints ``{"light": k}``) is a frame of the image-based
 pipeline with the point light at LED k: each valid sample pixel gives
-f = P / (C_k · cos θi / r²) (:func:`acquisition.reduce_image.frame_samples`), binned into the
+f = P / (C_k · cos θi / r²) (:func:`acquisition.reduction.image.frame_samples`), binned into the
 MERL table and the plan's isotropic table. A dark frame, when the session has one, is
 subtracted from every frame first (DN/s).
 """
@@ -27,15 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.linearize import LinearImage, linearize
-from calibration.raw import load_raw
-from drivers.errors import SessionError
-
-from ..imaging import PixelGeometry, frame_geometry
-from ..journal import StepRecord
-from ..merl import write_merl
-from ..reduce import session_provenance
-from ..reduce_image import (
+from acquisition.config.rig import RigConfig
+from acquisition.formats.merl import write_merl
+from acquisition.lightstage.capture import META_KEY
+from acquisition.reduction.image import (
     DEFAULT_MIN_COS,
     FrameSamples,
     ImageReduction,
@@ -43,11 +38,15 @@ from ..reduce_image import (
     frame_samples,
     white_calibration,
 )
-from ..rig import RigConfig
-from ..session import SessionFolder
-from ..steps import DARK, POSE, REFERENCE
-from ..tables import IsotropicTable, MerlTable
-from .capture import META_KEY
+from acquisition.reduction.imaging import PixelGeometry, frame_geometry
+from acquisition.reduction.point import session_provenance
+from acquisition.session.engine import SessionFolder
+from acquisition.session.journal import StepRecord
+from acquisition.session.steps import DARK, POSE, REFERENCE
+from acquisition.tables import IsotropicTable, MerlTable
+from calibration.linearize import LinearImage, linearize
+from calibration.raw import load_raw
+from drivers.errors import SessionError
 
 
 def is_lightstage_session(session_dir: str | Path) -> bool:

@@ -5,7 +5,7 @@ light each dome light stands for:
 
     L(p) = Σ_k R_k(p) · E_k,     E_k = Ω_k · mean of the environment over light k's cell
 
-with Ω_k the light's solid angle (its hemisphere Voronoi cell, :mod:`acquisition.dome`) and
+with Ω_k the light's solid angle (its hemisphere Voronoi cell, :mod:`acquisition.lightstage.dome`) and
 the mean taken over the environment pixels nearest to light k (solid-angle weighted). A cell
 no environment pixel falls in (a coarse map) takes the map's value at the light's direction.
 Light from below the horizon is outside the dome's reach and ignored.
@@ -17,10 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.lightstage.envmap import latlong_directions, read_exr, write_exr
+from acquisition.lightstage.field import ReflectanceField, load_field
 from drivers.errors import ConfigError
-
-from .envmap import latlong_directions, read_exr, write_exr
-from .field import ReflectanceField, load_field
 
 
 def light_weights(directions: np.ndarray, solid_angles_sr: np.ndarray,

@@ -3,7 +3,7 @@
 The camera sees the sum over LEDs of each LED's single-light image (lights add linearly):
 LED k at DMX level v_k (0–1), true relative intensity g_k and colour c_k contributes
 ``v_k · g_k · c_k ·`` the image under a point light of the rig's nominal intensity at
-``light_distance_m`` along its direction (:func:`acquisition.simscene.render_image`).
+``light_distance_m`` along its direction (:func:`acquisition.simworld.scene.render_image`).
 
 :func:`render_environment` renders the same sample under distant light from a lat-long
 environment map restricted to the dome's hemisphere (z > 0 in the sample frame): the
@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from acquisition.config.rig import RigConfig
+from acquisition.lightstage.envmap import latlong_directions
+from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect, tangent_frames
+from acquisition.simworld.scene import render_image
 from simulators.materials import Material
-
-from ..imaging import PinholeCamera, camera_intrinsics, intersect, tangent_frames
-from ..rig import RigConfig
-from ..simscene import render_image
-from .envmap import latlong_directions
 
 
 class LightImages:

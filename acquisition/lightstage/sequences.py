@@ -1,6 +1,6 @@
 """Light-stage sequences as data: frames under light states, and their time estimate.
 
-A :class:`LightFrame` is a step record (see :mod:`acquisition.steps`): expose the sample or
+A :class:`LightFrame` is a step record (see :mod:`acquisition.session.steps`): expose the sample or
 the white reference under one light state (a 0–1 level per LED). The capture engine
 (:mod:`acquisition.lightstage.capture`) journals each as one step: kind ``pose`` (sample),
 ``reference`` (white target) or ``dark``, joints ``{"light": k}`` for one-light-at-a-time
@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acquisition.lightstage.config import StageConfig
+from acquisition.session.steps import DARK, POSE, REFERENCE, Checkpoint, Step
 from drivers.dmx import (
     DEFAULT_BREAK_UNITS,
     DEFAULT_MAB_UNITS,
@@ -37,9 +39,6 @@ from drivers.dmx import (
     frame_time_s,
 )
 from drivers.errors import ConfigError
-
-from ..steps import DARK, POSE, REFERENCE, Checkpoint, Step
-from .config import StageConfig
 
 SEQUENCES = ("olat", "all-on", "dark", "gradient", "sh")
 """Sequence names accepted by :func:`sequence_frames`."""

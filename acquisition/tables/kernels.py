@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from acquisition.halfdiff import PHI_D_BINS, THETA_D_BINS, THETA_H_BINS
+from acquisition.geometry.halfdiff import PHI_D_BINS, THETA_D_BINS, THETA_H_BINS
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE
 
 _HALF_PI = np.pi / 2.0
@@ -161,7 +161,7 @@ def _merl_flat_rad(th, td, pd):  # pragma: no cover - compiled
 @njit(**_JIT)
 def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
     """(θh, θd, φd) in radians, operation for operation as
-    :func:`acquisition.halfdiff.halfdiff_rad_from_vectors`."""
+    :func:`acquisition.geometry.halfdiff.halfdiff_rad_from_vectors`."""
     hx = ix + ox
     hy = iy + oy
     hz = iz + oz
@@ -211,7 +211,7 @@ def _rotate(v0, v1, v2, a0, a1, a2, angle):  # pragma: no cover - compiled
 @njit(**_JIT)
 def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
     """Flat MERL index for isotropic (θi, θr, Δφ) in degrees, light at azimuth 0, operation
-    for operation as :func:`acquisition.halfdiff.halfdiff_rad_reference`; θi or θr outside
+    for operation as :func:`acquisition.geometry.halfdiff.halfdiff_rad_reference`; θi or θr outside
     [0°, 90°] gives −1 (unless NaN, −2)."""
     ti = ti_deg * _DEG2RAD
     to = tr_deg * _DEG2RAD

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.halfdiff import (
+from acquisition.geometry.halfdiff import (
     MERL_SHAPE,
     NAN_INDEX,
     OUT_OF_RANGE_INDEX,
@@ -31,14 +31,14 @@ from drivers.errors import ConfigError
 CHUNK = 1 << 16
 """Samples converted per step: temporaries stay cache-sized whatever the batch size."""
 
-# The index codes of acquisition.halfdiff are the accumulator's drop codes.
+# The index codes of acquisition.geometry.halfdiff are the accumulator's drop codes.
 assert (NAN_INDEX, OUT_OF_RANGE_INDEX) == (DROP_NAN, DROP_OUT_OF_RANGE)
 
 
 class MerlTable(TableStatistics):
     """Streaming BRDF table on the MERL grid (θh square-root spaced, θd, φd folded by 180°).
 
-    Bins are those of the MERL reference reader (see :mod:`acquisition.halfdiff`); a sample
+    Bins are those of the MERL reference reader (see :mod:`acquisition.geometry.halfdiff`); a sample
     lands in the bin the reference lookup would read for its directions. Samples with a
     direction at or below the horizon, or θh/θd outside [0°, 90°], are dropped as out of range;
     samples with NaN as NaN.

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .base import JointLimits, Kinematics, wrap_deg_array
+from acquisition.geometry.kinematics.base import JointLimits, Kinematics, wrap_deg_array
 
 
 class OutOfPlaneArcs(Kinematics):

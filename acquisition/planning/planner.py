@@ -20,7 +20,7 @@ Constraints (in the order a rejection reports them):
 ``reciprocal``     the reciprocal pose (θi ↔ θr) is already planned (unless the plan asks for
                    both).
 
-Accepted poses are ordered by :mod:`acquisition.ordering` on the time model's metric; the
+Accepted poses are ordered by :mod:`acquisition.planning.ordering` on the time model's metric; the
 sweep reports the planned motion time, that of the naive order (sorted by (θi, θr, Δφ), each
 pose's solution nearest the previous one), a lower bound, and the total estimate including
 the white-reference captures the session interleaves.
@@ -36,18 +36,17 @@ from enum import StrEnum
 
 import numpy as np
 
-from drivers.errors import CollisionError, LimitError
-
-from . import ordering
-from .kinematics import Joints, Kinematics, Pose, poses_to_array
-from .kinematics.base import (
+from acquisition.config.plan import PlanSpec
+from acquisition.config.rig import DEFAULT_CLEARANCE_M, ArmConfig, ArmsConfig, FootprintConfig, RigConfig
+from acquisition.geometry.kinematics import Joints, Kinematics, Pose, poses_to_array
+from acquisition.geometry.kinematics.base import (
     angle_between_deg_array,
     directions_from_poses,
     wrap_deg_array,
 )
-from .plan import PlanSpec
-from .rig import DEFAULT_CLEARANCE_M, ArmConfig, ArmsConfig, FootprintConfig, RigConfig
-from .timing import AxisProfile, StepCosts, TimeModel
+from acquisition.planning import ordering
+from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
+from drivers.errors import CollisionError, LimitError
 
 TRANSIT_STEP_DEG = 1.0
 """Largest joint travel between two checked points of a move's swept path (deg)."""

@@ -1,6 +1,6 @@
 """Making a calibration bundle on a rig: ``gonio calibrate dark|flat|noise|white``.
 
-Each kind captures its frames through the rig's devices (:func:`acquisition.devices.open_devices`)
+Each kind captures its frames through the rig's devices (:func:`acquisition.devices.rig.open_devices`)
 at the white-reference pose and stores its result in a :class:`calibration.bundle.CalibrationBundle`:
 
 ``dark``   ≥ 8 lens-capped frames per (exposure, ISO) → median master dark, bad-pixel map;
@@ -12,7 +12,7 @@ at the white-reference pose and stores its result in a :class:`calibration.bundl
            bundle holds → per-colour signal, reflectance, θi and light distance.
 
 On a simulated rig the sample holder presents the simulator's calibration targets
-(:class:`acquisition.simscene.SampleHolder`): ``"cap"`` (the lens cap, a black frame) and
+(:class:`acquisition.simworld.scene.SampleHolder`): ``"cap"`` (the lens cap, a black frame) and
 ``"uniform"`` (the white reference's radiance over the whole frame), seen by the rig's own
 camera on its simulated clock (with the rig's light drift, if it states one).
 """
@@ -27,6 +27,11 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.config.rig import RigConfig, load_rig
+from acquisition.devices.rig import RigDevices, open_devices
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner
+from acquisition.simworld.scene import TARGETS, SampleHolder, white_material
 from calibration.bundle import CalibrationBundle, provenance
 from calibration.dark import MIN_DARK_FRAMES, bad_pixel_map, master_dark
 from calibration.flat import flat_field
@@ -35,12 +40,6 @@ from calibration.noise import photon_transfer
 from calibration.raw import RawFrame, load_raw
 from calibration.white import measure_white
 from drivers.errors import CalibrationError, ConfigError
-
-from .devices import RigDevices, open_devices
-from .kinematics import Pose
-from .planner import Planner
-from .rig import RigConfig, load_rig
-from .simscene import TARGETS, SampleHolder, white_material
 
 KINDS = ("dark", "flat", "noise", "white")
 FLAT_FRAMES = 16

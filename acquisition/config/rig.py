@@ -1,7 +1,7 @@
 """Rig files: the TOML description of a rig's ports, servos, axes, limits and geometry.
 
 ``load_rig(path)`` parses and validates a rig file into a frozen :class:`RigConfig`; nothing
-is opened. Opening devices (real or simulated) is :mod:`acquisition.devices`' job.
+is opened. Opening devices (real or simulated) is :mod:`acquisition.devices.rig`' job.
 """
 
 from __future__ import annotations
@@ -12,11 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from acquisition.config.toml import Section, load_toml
+from acquisition.geometry.kinematics import KINEMATICS, Kinematics
+from acquisition.geometry.kinematics.lightstage import LightStage
 from drivers.errors import ConfigError
-
-from .config import Section, load_toml
-from .kinematics import KINEMATICS, Kinematics
-from .kinematics.lightstage import LightStage
 
 RIG_FORMAT_VERSION = 1
 
@@ -100,7 +99,7 @@ class SampleConfig:
     centre_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Centre of a sphere sample in the sample frame, m."""
     image_based: bool = False
-    """Every valid pixel on the sample is a BRDF sample (acquisition.reduce_image)."""
+    """Every valid pixel on the sample is a BRDF sample (acquisition.reduction.image)."""
 
 
 @dataclass(frozen=True)
@@ -343,10 +342,10 @@ def load_rig(path: str | Path) -> RigConfig:
 DEFAULT_BUS_CYCLE_S = 0.03
 """Per-move bus time (s) of a rig without servo buses (a light stage)."""
 MOTION_POLL_S = 0.01
-"""Pause (s) between the motion controller's control cycles (``acquisition.devices`` uses it)."""
+"""Pause (s) between the motion controller's control cycles (``acquisition.devices.rig`` uses it)."""
 RETURN_DELAY_S = 0.0
 """Return Delay Time before each status reply: gonio sets it to 0 when it opens a rig
-(``acquisition.devices.set_low_latency``; the X-series factory value is 250 × 2 µs)."""
+(``acquisition.devices.rig.set_low_latency``; the X-series factory value is 250 × 2 µs)."""
 _READ_BYTES = {"status": 84, "safety": 7, "motion": 20}
 """Bytes per servo of the driver's sync reads: health status (64–147), torque and hardware
 error (64–70), goal/moving/velocity/position (116–135)."""

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .base import JointLimits, Kinematics, directions_from_poses
+from acquisition.geometry.kinematics.base import JointLimits, Kinematics, directions_from_poses
 
 
 class CoaxialArms(Kinematics):

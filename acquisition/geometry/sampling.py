@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .halfdiff import angles_from_halfdiff
+from acquisition.geometry.halfdiff import angles_from_halfdiff
 
 
 def grid(theta_i: np.ndarray, theta_r: np.ndarray, delta_phi: np.ndarray) -> np.ndarray:

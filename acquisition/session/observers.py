@@ -1,6 +1,6 @@
 """Observers of a running session: progress, log, live reduction, user callbacks.
 
-The engine (:class:`acquisition.session.SessionEngine`) calls every observer's
+The engine (:class:`acquisition.session.engine.SessionEngine`) calls every observer's
 :meth:`Observer.start`, then :meth:`Observer.step` after each journal step completes,
 :meth:`Observer.checkpoint` at each checkpoint, and :meth:`Observer.finish` or
 :meth:`Observer.error` at the end. Observers run on host time (the simulated clock is stopped)
@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .kinematics import Pose
-from .steps import POSE, REFERENCE
+from acquisition.geometry.kinematics import Pose
+from acquisition.session.steps import POSE, REFERENCE
 
 if TYPE_CHECKING:
-    from .journal import StepRecord
-    from .session import SessionFolder, StepEvent
-    from .tables import IsotropicTable
+    from acquisition.session.engine import SessionFolder, StepEvent
+    from acquisition.session.journal import StepRecord
+    from acquisition.tables import IsotropicTable
 
 
 class Observer:
@@ -120,7 +120,7 @@ class LiveReduction(Observer):
         self._ref: np.ndarray | None = None
 
     def start(self, folder: SessionFolder, total: int | None, done: int) -> None:
-        from .tables import IsotropicTable
+        from acquisition.tables import IsotropicTable
 
         self._folder = folder
         rig, plan = folder.rig(), folder.plan()
@@ -132,7 +132,7 @@ class LiveReduction(Observer):
                                         provenance={"live": True, "session": str(folder.path)})
 
     def step(self, event: StepEvent) -> None:
-        from .reduce import frame_signal
+        from acquisition.reduction.point import frame_signal
 
         rec = event.record
         if event.frame is None or rec.kind not in (POSE, REFERENCE):

@@ -2,7 +2,7 @@
 
 Per frame (RAW → :func:`calibration.linearize.linearize`, in DN/s), the rig's pinhole camera
 and point light at the frame's read-back joint angles give each pixel that sees a lit part of
-the sample its local (wi, wo) and irradiance term cos θi / r² (:mod:`acquisition.imaging`).
+the sample its local (wi, wo) and irradiance term cos θi / r² (:mod:`acquisition.reduction.imaging`).
 
 Absolute scale
 --------------
@@ -15,7 +15,7 @@ pose. Over the region of interest's valid pixels on the plate,
     C = Σ P_ref / Σ (ρ/π · cos θi / r²)          (per channel, per reference frame)
 
 using each plate pixel's own geometry (for a distant light and camera this reduces to the ROI
-formula of :mod:`acquisition.reduce`). C is interpolated linearly in step between the
+formula of :mod:`acquisition.reduction.point`). C is interpolated linearly in step between the
 reference frames (correcting slow drift), and every sample pixel gives
 
     f = P / (C · cos θi / r²)                    [sr⁻¹].
@@ -26,7 +26,7 @@ light, not the sample.
 With a calibration bundle (``bundle=``, else the one copied into the session folder), every
 frame is linearized with its master dark, flat field (the camera's vignetting and pixel
 response: the plate's and the sample's pixels are corrected alike), bad-pixel map and noise
-model, as in :mod:`acquisition.reduce`. An HDR bracket (journal rows noted
+model, as in :mod:`acquisition.reduction.point`. An HDR bracket (journal rows noted
 ``hdr=<first step>:<k>``) is merged per superpixel with inverse-variance weights first and
 counts as one frame.
 
@@ -44,20 +44,26 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.config.rig import RigConfig
+from acquisition.formats.merl import write_merl
+from acquisition.geometry.kinematics import poses_from_directions
+from acquisition.reduction.imaging import PixelGeometry, frame_geometry
+from acquisition.reduction.point import Reduction, find_bundle, linearize_with_variance, session_provenance
+from acquisition.session.engine import (
+    HDR_DONE_META,
+    POSE,
+    REFERENCE,
+    SessionFolder,
+    camera_noise_model,
+    hdr_group,
+)
+from acquisition.session.journal import StepRecord
+from acquisition.tables import IsotropicTable, MerlTable
 from calibration.bundle import CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage, linearize
 from calibration.raw import load_raw
 from drivers.errors import SessionError
-
-from .imaging import PixelGeometry, frame_geometry
-from .journal import StepRecord
-from .kinematics import poses_from_directions
-from .merl import write_merl
-from .reduce import Reduction, find_bundle, linearize_with_variance, session_provenance
-from .rig import RigConfig
-from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
-from .tables import IsotropicTable, MerlTable
 
 DEFAULT_MIN_COS = 0.02
 """Samples with cos θi or cos θr below this (beyond ~88.9°) are dropped: at the sample's

@@ -9,7 +9,7 @@ Two renderers, chosen by the rig file's ``[sample] image_based``:
 * region of interest (default): the flat sample covers a rectangle around the region of
   interest with one uniform radiance, that of the sample's centre;
 * image-based: every superpixel is rendered with its own geometry
-  (:mod:`acquisition.imaging`: pinhole camera, flat or spherical sample, point light), so
+  (:mod:`acquisition.reduction.imaging`: pinhole camera, flat or spherical sample, point light), so
   the radiance is f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat
   Lambertian plate of the sample's ``size_m`` at the origin, rendered the same way.
 
@@ -34,13 +34,12 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.config.rig import RigConfig
+from acquisition.config.toml import Section
+from acquisition.geometry.kinematics import Kinematics
+from acquisition.reduction.imaging import frame_geometry
 from simulators.clock import SimClock
 from simulators.materials import Lambert, Material
-
-from .config import Section
-from .imaging import frame_geometry
-from .kinematics import Kinematics
-from .rig import RigConfig
 
 SAMPLE_MARGIN_SUPERPIXELS = 4
 """Sample extent beyond the region of interest on each side."""

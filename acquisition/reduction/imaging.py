@@ -31,9 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
 from drivers.errors import ConfigError
-
-from .rig import CameraIntrinsics, RigConfig, SampleConfig
 
 ZENITH_TOLERANCE = 1e-9
 """|sin θ| below which the camera counts as exactly at the zenith (up = −x)."""

@@ -13,10 +13,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .base import JointLimits, Kinematics, poses_from_directions, wrap_deg_array
+from acquisition.geometry.kinematics.base import (
+    JointLimits,
+    Kinematics,
+    poses_from_directions,
+    wrap_deg_array,
+)
 
 if TYPE_CHECKING:
-    from ..rig import RigConfig
+    from acquisition.config.rig import RigConfig
 
 
 class LightStage(Kinematics):

@@ -25,6 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.config.rig import MOTION_POLL_S, AxisConfig, RigConfig
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner
+from acquisition.simworld.scene import SampleHolder, make_scene, white_material
 from calibration.linearize import linearize
 from calibration.raw import load_raw
 from drivers.camera import Camera
@@ -44,11 +48,6 @@ from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
 from simulators.materials import Material
 from simulators.sensor import SensorModel
-
-from .kinematics import Pose
-from .planner import Planner
-from .rig import MOTION_POLL_S, AxisConfig, RigConfig
-from .simscene import SampleHolder, make_scene, white_material
 
 log = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .tables import IsotropicTable  # noqa: E402
+from acquisition.tables import IsotropicTable  # noqa: E402
 
 
 def _in_plane(table: IsotropicTable, i: int) -> tuple[np.ndarray, np.ndarray]:

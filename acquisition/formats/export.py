@@ -16,12 +16,11 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.formats.merl import MERL_FILE_BYTES, MERL_SCALES, MerlBRDF, read_merl, write_merl
+from acquisition.geometry.halfdiff import MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
+from acquisition.tables import IsotropicTable
+from acquisition.tables.atomic import atomic_path
 from drivers.errors import ConfigError, StorageError
-
-from .halfdiff import MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
-from .merl import MERL_FILE_BYTES, MERL_SCALES, MerlBRDF, read_merl, write_merl
-from .tables import IsotropicTable
-from .tables.atomic import atomic_path
 
 Table = IsotropicTable | MerlBRDF
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .base import (
+from acquisition.geometry.kinematics.base import (
     Geometry,
     JointLimits,
     Joints,
@@ -13,9 +13,9 @@ from .base import (
     poses_to_array,
     wrap_deg,
 )
-from .coaxial import CoaxialArms
-from .lightstage import LightStage
-from .out_of_plane import OutOfPlaneArcs
+from acquisition.geometry.kinematics.coaxial import CoaxialArms
+from acquisition.geometry.kinematics.lightstage import LightStage
+from acquisition.geometry.kinematics.out_of_plane import OutOfPlaneArcs
 
 KINEMATICS: dict[str, type[Kinematics]] = {
     OutOfPlaneArcs.name: OutOfPlaneArcs,

@@ -6,12 +6,12 @@ Layout of a session folder (see docs/formats.md)::
     plan.toml       copy of the plan file used
     calibration/    copy of the calibration used, when one was given
     session.json    material, seed, versions (provenance)
-    journal.sqlite  every step's intent and completion (see acquisition.journal)
+    journal.sqlite  every step's intent and completion (see acquisition.session.journal)
     frames/         RAW frames, written atomically, named step-NNNNNN.dng
 
 :func:`create_session` lays the folder out (and for ``gonio capture`` plans the sweep once,
 recording every step); :class:`SessionEngine` runs a plan of step records
-(:mod:`acquisition.steps`) against the journal, skipping what is done, so ``gonio resume``
+(:mod:`acquisition.session.steps`) against the journal, skipping what is done, so ``gonio resume``
 after Ctrl-C, a crash or a power cut continues exactly where the run stopped.
 """
 
@@ -30,23 +30,12 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from calibration.hdr import BracketPolicy, bracket
-from calibration.linearize import NoiseModel
-from drivers.errors import (
-    CommunicationError,
-    GonioError,
-    HardwareError,
-    SafetyStop,
-    SessionError,
-    StorageError,
-)
-
-from .journal import Journal, StepRecord
-from .kinematics import Pose
-from .plan import PlanSpec, load_plan
-from .planner import Planner, Sweep
-from .rig import RigConfig, load_rig
-from .steps import (
+from acquisition.config.plan import PlanSpec, load_plan
+from acquisition.config.rig import RigConfig, load_rig
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner, Sweep
+from acquisition.session.journal import Journal, StepRecord
+from acquisition.session.steps import (
     CUSTOM,
     DARK,
     POSE,
@@ -62,10 +51,20 @@ from .steps import (
     capture_steps,
     sweep_steps,
 )
-from .storage import TMP_SUFFIX, atomic_target, sha256_file
+from acquisition.session.storage import TMP_SUFFIX, atomic_target, sha256_file
+from calibration.hdr import BracketPolicy, bracket
+from calibration.linearize import NoiseModel
+from drivers.errors import (
+    CommunicationError,
+    GonioError,
+    HardwareError,
+    SafetyStop,
+    SessionError,
+    StorageError,
+)
 
 if TYPE_CHECKING:
-    from .observers import Observer
+    from acquisition.session.observers import Observer
 
 RIG_FILE = "rig.toml"
 PLAN_FILE = "plan.toml"
@@ -199,7 +198,7 @@ def reference_geometry(rig: RigConfig, planner: Planner) -> tuple[Pose, dict[str
 
 def schedule_steps(sweep: Sweep, reference_joints: dict[str, float], reference_pose: Pose,
                    reference_every: int) -> list[tuple[str, float, float, float, dict[str, float]]]:
-    """Journal rows (kind, θi, θr, Δφ, joints) of :func:`acquisition.steps.sweep_steps`."""
+    """Journal rows (kind, θi, θr, Δφ, joints) of :func:`acquisition.session.steps.sweep_steps`."""
     ref = Reference(reference_pose, reference_joints)
     rows: list[tuple[str, float, float, float, dict[str, float]]] = []
     current: Move | None = None
@@ -330,7 +329,7 @@ class StepEvent:
 
 @dataclass
 class StepContext:
-    """What a :class:`~acquisition.steps.Custom` step's function receives."""
+    """What a :class:`~acquisition.session.steps.Custom` step's function receives."""
 
     folder: SessionFolder
     devices: CaptureDevices
@@ -352,14 +351,14 @@ class SessionEngine:
     folder
         The session.
     devices
-        An open rig (see :mod:`acquisition.devices`).
+        An open rig (see :mod:`acquisition.devices.rig`).
     planner
         Guards and solves moves (joints for a pose given without them).
     saturated
         ``saturated(frame_path) -> bool``: whether the region of interest clipped; the frame is
         retaken at a quarter of the exposure, up to the rig's ``max_exposure_retries``.
     observers
-        :class:`acquisition.observers.Observer` objects told of start, steps, checkpoints,
+        :class:`acquisition.session.observers.Observer` objects told of start, steps, checkpoints,
         errors and the end.
 
     Notes
@@ -768,7 +767,7 @@ class CaptureEngine:
         observers: Sequence[Observer] = (),
         planner: Planner | None = None,
     ) -> None:
-        from .observers import ProgressObserver
+        from acquisition.session.observers import ProgressObserver
 
         obs = list(observers)
         if progress is not None:
@@ -899,7 +898,7 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
     # stage's per-LED white frames are lit by different lights).
     refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
     if drift and len(refs) >= 2:
-        from .reduce import frame_signal
+        from acquisition.reduction.point import frame_signal
 
         roi = folder.rig().camera.roi
         sig = np.array([frame_signal(folder.frames_dir / str(r.frame), roi, r.step).signal

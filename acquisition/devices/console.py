@@ -3,7 +3,7 @@
 ``gonio status|scan|jog|move|home|park|torque|reboot`` are thin wrappers over this module, and
 scripts use it directly::
 
-    from acquisition.console import open_console
+    from acquisition.devices.console import open_console
     with open_console("rig.toml") as con:
         print(format_status(con.status()))
         con.jog("camera_phi", 10.0)                  # relative, degrees
@@ -30,15 +30,14 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from acquisition.config.rig import RigConfig, load_rig
+from acquisition.devices.rig import HealthLimits, ServoRig, open_servos, start_simulated_buses
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner
 from drivers.dynamixel import COMMON_BAUD_RATES, ServoBus
 from drivers.dynamixel.codes import HARDWARE_BITS
 from drivers.errors import ConfigError, LimitError, SafetyStop
 from simulators.clock import SimClock
-
-from .devices import HealthLimits, ServoRig, open_servos, start_simulated_buses
-from .kinematics import Pose
-from .planner import Planner
-from .rig import RigConfig, load_rig
 
 ALL_IDS = range(253)
 """Every servo ID a scan can find (0–252)."""
@@ -75,7 +74,7 @@ class Console:
         The open servo side of the rig.
     health_wait_s:
         How long a move may wait for hot servos / an out-of-range supply (device s); 0 refuses
-        at once with a :class:`~acquisition.devices.ServoHealthError`.
+        at once with a :class:`~acquisition.devices.rig.ServoHealthError`.
     """
 
     def __init__(self, servos: ServoRig, *, health_wait_s: float = 0.0) -> None:

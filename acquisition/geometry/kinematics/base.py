@@ -19,7 +19,7 @@ import numpy as np
 from drivers.errors import UnreachablePoseError
 
 if TYPE_CHECKING:
-    from ..rig import RigConfig
+    from acquisition.config.rig import RigConfig
 
 Joints = dict[str, float]
 """Joint name → angle in degrees (or a light index for a light stage)."""

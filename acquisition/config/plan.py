@@ -2,7 +2,7 @@
 
 A plan is data: :func:`load_plan` parses a TOML file into a :class:`PlanSpec` whose
 ``poses()`` expands the sampling into candidate poses (degrees). Which candidates are safe and
-useful, and in what order to take them, is the planner's job (:mod:`acquisition.planner`).
+useful, and in what order to take them, is the planner's job (:mod:`acquisition.planning.planner`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from . import sampling
-from .config import Section, load_toml
-from .kinematics import Pose
+from acquisition.config.toml import Section, load_toml
+from acquisition.geometry import sampling
+from acquisition.geometry.kinematics import Pose
 
 PLAN_FORMAT_VERSION = 1
 
@@ -68,7 +68,7 @@ class CaptureSettings:
     reference_every: int = 0
     """Capture the white reference every N poses as well as first and last (0 = first/last)."""
     hdr: bool = False
-    """Bracket every pose automatically (:class:`acquisition.steps.ExposeHDR`)."""
+    """Bracket every pose automatically (:class:`acquisition.session.steps.ExposeHDR`)."""
     target_snr: float = 20.0
     """HDR: SNR the darkest valid ROI superpixel of each pose's merge must reach."""
 

@@ -33,18 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.config.plan import PlanSpec
+from acquisition.config.rig import RigConfig
+from acquisition.geometry.kinematics import Pose
+from acquisition.session.engine import (
+    HDR_DONE_META,
+    POSE,
+    REFERENCE,
+    SessionFolder,
+    camera_noise_model,
+    hdr_group,
+)
+from acquisition.session.journal import StepRecord
+from acquisition.tables import IsotropicTable
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage, linearize, roi_mean
 from calibration.raw import load_raw
 from drivers.errors import SessionError
-
-from .journal import StepRecord
-from .kinematics import Pose
-from .plan import PlanSpec
-from .rig import RigConfig
-from .session import HDR_DONE_META, POSE, REFERENCE, SessionFolder, camera_noise_model, hdr_group
-from .tables import IsotropicTable
 
 
 @dataclass(frozen=True)
@@ -120,7 +126,7 @@ def frame_signal(
 def linearize_with_variance(path: Path, rig: RigConfig,
                             bundle: CalibrationBundle | None = None) -> LinearImage:
     """Linearize a frame with the bundle's corrections and a variance per superpixel (the
-    bundle's noise model, else :func:`acquisition.session.camera_noise_model`)."""
+    bundle's noise model, else :func:`acquisition.session.engine.camera_noise_model`)."""
     frame = load_raw(path)
     iso = float(frame.iso or rig.camera.iso)
     if bundle is not None and bundle.noise_for(iso) is not None:
@@ -208,7 +214,7 @@ def reduce_session(
     cal = find_bundle(folder, bundle)
     rig, plan = folder.rig(), folder.plan()
     if rig.sample.image_based:
-        from .reduce_image import reduce_image_session  # imports reduce: load lazily
+        from acquisition.reduction.image import reduce_image_session  # imports reduce: load lazily
 
         return reduce_image_session(folder.path, progress, bundle=bundle)
     kin = rig.kinematics()

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.reduction.point import binning_pose
+from acquisition.session.engine import POSE, SessionFolder
+from acquisition.tables import IsotropicTable
 from simulators.materials import Material, material_from_spec
-
-from .reduce import binning_pose
-from .session import POSE, SessionFolder
-from .tables import IsotropicTable
 
 
 def truth_table(session_dir: str | Path, material: Material | None = None) -> IsotropicTable:

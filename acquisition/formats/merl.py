@@ -1,0 +1,252 @@
+"""MERL BRDF database files: read, write, evaluate, and use as a simulated material.
+
+File layout (what the MERL reference reader ``BRDFRead.cpp`` reads), 34,992,012 bytes:
+
+* header: three little-endian int32, 90, 90, 180 (θh, θd, φd bins; the reader checks only
+  their product, 1,458,000);
+* three planes R, G, B of 1,458,000 little-endian float64 each, C order over
+  (θh, θd, φd) with φd fastest: flat index ``(ih·90 + id)·180 + ip``;
+* stored value = BRDF / scale, so BRDF (sr⁻¹) = stored value × scale with scales
+  R 1/1500, G 1.15/1500, B 1.66/1500;
+* negative values mark unmeasured bins (the reference prints "Below horizon.").
+
+Importing this module registers the ``merl:PATH`` material spec in
+:data:`simulators.materials.MATERIAL_PARSERS`, so the simulated camera can "capture" a measured
+material.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import numpy as np
+
+from acquisition.geometry.halfdiff import (
+    MERL_BINS,
+    MERL_SHAPE,
+    halfdiff_rad_from_vectors,
+    halfdiff_rad_reference,
+    merl_flat_index_rad,
+)
+from acquisition.tables.atomic import atomic_path
+from acquisition.tables.merl_table import MerlTable
+from drivers.errors import ConfigError, MaterialError
+from simulators.materials import MATERIAL_PARSERS, Material
+
+MERL_SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+"""BRDF (sr⁻¹) = stored value × scale, per channel R, G, B."""
+MERL_HEADER = (90, 90, 180)
+HEADER_BYTES = 12
+MERL_FILE_BYTES = HEADER_BYTES + 3 * MERL_BINS * 8
+"""Exact size of a MERL file: 34,992,012 bytes."""
+UNMEASURED = -1.0
+"""Stored value written for unmeasured bins (any negative value marks one)."""
+
+
+class MerlBRDF:
+    """A BRDF on the MERL grid, as stored in a MERL file.
+
+    Parameters
+    ----------
+    stored
+        (3, 90, 90, 180) float64 stored values (BRDF / scale; negative = unmeasured).
+    header
+        The file's three int32 dimensions, kept so a rewrite reproduces the file exactly.
+    path
+        Where it was read from, if anywhere.
+    """
+
+    def __init__(
+        self,
+        stored: np.ndarray,
+        header: tuple[int, int, int] = MERL_HEADER,
+        path: str | os.PathLike[str] | None = None,
+    ) -> None:
+        stored = np.asarray(stored, dtype=np.float64)
+        if stored.size != 3 * MERL_BINS:
+            raise ConfigError(f"MERL data need 3 x {MERL_BINS} values, got {stored.size}")
+        self.stored = stored.reshape(3, *MERL_SHAPE)
+        self.header = tuple(int(h) for h in header)
+        self.path = None if path is None else Path(path)
+        # Per-bin BRDF with RGB last, computed as the reference does (stored × scale).
+        self._flat = np.ascontiguousarray(self.stored.reshape(3, MERL_BINS).T) * MERL_SCALES
+
+    @property
+    def values(self) -> np.ndarray:
+        """BRDF per bin, float64 [90, 90, 180, 3] in sr⁻¹ (negative where unmeasured)."""
+        return self._flat.reshape(*MERL_SHAPE, 3).copy()
+
+    @property
+    def measured(self) -> np.ndarray:
+        """Bins whose three channels are all ≥ 0, bool [90, 90, 180]."""
+        return (self.stored >= 0).all(axis=0)
+
+    def lookup_rad(
+        self,
+        theta_in: np.ndarray | float,
+        phi_in: np.ndarray | float,
+        theta_out: np.ndarray | float,
+        phi_out: np.ndarray | float,
+    ) -> np.ndarray:
+        """The reference lookup for spherical angles in radians: (…, 3) in sr⁻¹.
+
+        Nearest bin, no interpolation, indices clamped, negative values returned as stored
+        (× scale) for unmeasured bins; exactly the reference reader's arithmetic.
+        """
+        th, td, pd = halfdiff_rad_reference(theta_in, phi_in, theta_out, phi_out)
+        return self._flat[merl_flat_index_rad(th, td, pd, clamp=True)]
+
+    def __call__(
+        self,
+        theta_i_deg: np.ndarray | float,
+        theta_r_deg: np.ndarray | float,
+        delta_phi_deg: np.ndarray | float,
+    ) -> np.ndarray:
+        """BRDF (…, 3) in sr⁻¹ at (θi, θr, Δφ) in degrees, as the reference lookup returns it.
+
+        The light is at azimuth 0 and the view at azimuth Δφ. Unmeasured bins give negative
+        values, as in the reference; below-horizon angles are not special-cased.
+        """
+        return self.lookup_rad(
+            np.radians(theta_i_deg), 0.0, np.radians(theta_r_deg), np.radians(delta_phi_deg)
+        )
+
+    def eval_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """BRDF (…, 3) in sr⁻¹ for unit light ``wi`` and view ``wo`` vectors (…, 3), normal +z.
+
+        Same nearest-bin lookup as :meth:`__call__`, from vectors directly (agrees with the
+        reference up to float rounding at bin boundaries).
+        """
+        th, td, pd = halfdiff_rad_from_vectors(wi, wo)
+        return self._flat[merl_flat_index_rad(th, td, pd, clamp=True)]
+
+    def as_material(self, spec: str | None = None) -> MerlMaterial:
+        """This BRDF as a :class:`simulators.materials.Material` for the simulated camera."""
+        return MerlMaterial(self, spec or f"merl:{self.path or '<memory>'}")
+
+
+class MerlMaterial(Material):
+    """A MERL BRDF as a simulated material.
+
+    Evaluates like :meth:`MerlBRDF.eval_vectors`, but returns 0 for directions at or below the
+    horizon (the :class:`Material` contract) and for unmeasured (negative) bins.
+    """
+
+    def __init__(self, brdf: MerlBRDF, spec: str) -> None:
+        self.brdf = brdf
+        self.spec = spec
+
+    def eval_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        value = np.maximum(self.brdf.eval_vectors(wi, wo), 0.0)
+        above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        return np.where(above[..., None], value, 0.0)
+
+    def __repr__(self) -> str:
+        return f"MerlMaterial({self.spec!r})"
+
+
+# ---------------------------------------------------------------------------- file I/O
+def read_merl(path: str | os.PathLike[str]) -> MerlBRDF:
+    """Read a MERL ``.binary`` file; raises :class:`ConfigError` if it is missing or malformed."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"MERL file {path} does not exist: check the path") from None
+    except OSError as exc:
+        raise ConfigError(f"MERL file {path} cannot be read: {exc.strerror or exc}") from None
+    if len(raw) < HEADER_BYTES:
+        raise ConfigError(f"MERL file {path} is {len(raw)} bytes, too short for a header")
+    header = tuple(int(v) for v in np.frombuffer(raw, dtype="<i4", count=3))
+    if np.prod(header, dtype=np.int64) != MERL_BINS:
+        raise ConfigError(
+            f"MERL file {path}: header {header} does not hold 90 x 90 x 180 bins; "
+            "not a MERL BRDF file"
+        )
+    if len(raw) != MERL_FILE_BYTES:
+        raise ConfigError(
+            f"MERL file {path} is {len(raw)} bytes, expected {MERL_FILE_BYTES}; "
+            "the file is truncated or not a MERL BRDF"
+        )
+    stored = np.frombuffer(raw, dtype="<f8", offset=HEADER_BYTES).astype(np.float64)
+    return MerlBRDF(stored, header, path)  # type: ignore[arg-type]
+
+
+def merl_stored_values(
+    source: MerlBRDF | MerlTable | np.ndarray, unmeasured: float = UNMEASURED
+) -> np.ndarray:
+    """(3, 90, 90, 180) stored values (BRDF / scale) for what :func:`write_merl` accepts."""
+    if unmeasured >= 0 or not np.isfinite(unmeasured):
+        raise ValueError(f"unmeasured marker must be a finite negative number, got {unmeasured}")
+    if isinstance(source, MerlBRDF):
+        return source.stored
+    if isinstance(source, MerlTable):
+        brdf = source.mean
+    else:
+        brdf = np.asarray(source, dtype=np.float64)
+        if brdf.shape == (3, *MERL_SHAPE):
+            brdf = np.moveaxis(brdf, 0, -1)
+        elif brdf.shape != (*MERL_SHAPE, 3):
+            raise ValueError(
+                f"MERL data must be shaped (90, 90, 180, 3) or (3, 90, 90, 180), got {brdf.shape}"
+            )
+    stored = np.moveaxis(brdf / MERL_SCALES, -1, 0)
+    return np.where(np.isnan(stored), unmeasured, stored)
+
+
+def write_merl(
+    path: str | os.PathLike[str],
+    source: MerlBRDF | MerlTable | np.ndarray,
+    *,
+    unmeasured: float = UNMEASURED,
+) -> None:
+    """Write a MERL file (atomically) that the MERL reference reader loads.
+
+    Parameters
+    ----------
+    path
+        Output file (usually ``*.binary``).
+    source
+        A :class:`MerlBRDF` (written back exactly as read: ``write_merl(p, read_merl(src))``
+        reproduces ``src`` byte for byte), a :class:`~acquisition.tables.MerlTable` (its mean;
+        empty bins unmeasured), or an array of BRDF values in sr⁻¹ shaped (90, 90, 180, 3) or
+        (3, 90, 90, 180) where NaN marks unmeasured bins.
+    unmeasured
+        Negative stored value written for unmeasured bins.
+    """
+    stored = merl_stored_values(source, unmeasured)
+    header = source.header if isinstance(source, MerlBRDF) else MERL_HEADER
+    with atomic_path(path, "MERL file") as tmp, open(tmp, "wb") as fh:
+        fh.write(np.asarray(header, dtype="<i4").tobytes())
+        fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
+
+
+# ---------------------------------------------------------------------------- material spec
+@functools.lru_cache(maxsize=4)
+def _read_cached(resolved: str, mtime_ns: int, size: int) -> MerlBRDF:
+    return read_merl(resolved)
+
+
+def material_from_merl_spec(text: str) -> MerlMaterial:
+    """Parser for ``merl:PATH`` (``text`` is PATH); raises :class:`MaterialError`."""
+    name = text.strip()
+    if not name:
+        raise MaterialError(
+            "material 'merl:' needs a file path, e.g. merl:/data/merl/alum-bronze.binary"
+        )
+    path = Path(name).expanduser()
+    try:
+        st = path.stat()
+        brdf = _read_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
+    except FileNotFoundError:
+        raise MaterialError(f"material 'merl:{name}': file {path} does not exist") from None
+    except ConfigError as exc:
+        raise MaterialError(f"material 'merl:{name}': {exc}") from None
+    return brdf.as_material(f"merl:{name}")
+
+
+MATERIAL_PARSERS["merl"] = material_from_merl_spec

@@ -22,7 +22,9 @@ from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep  # noqa: F401  (re-exported)
 from acquisition.planning.timing import TimeModel
 from acquisition.reduction.point import Reduction, reduce_session
-from acquisition.session.engine import CaptureEngine, SessionEngine, SessionFolder, create_session
+from acquisition.session.capture import CaptureEngine
+from acquisition.session.engine import SessionEngine
+from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps

@@ -14,7 +14,9 @@ from conftest import grid_plan_text
 
 from acquisition import api
 from acquisition.reduction.point import reduce_session
-from acquisition.session.engine import HDR_DONE_META, JOURNAL_FILE, POSE, StepEvent, hdr_group
+from acquisition.session.engine import POSE, StepEvent
+from acquisition.session.folder import JOURNAL_FILE
+from acquisition.session.hdr import HDR_DONE_META, hdr_group
 from acquisition.session.journal import Journal
 from acquisition.session.observers import Observer
 from acquisition.simworld.truth import truth_table

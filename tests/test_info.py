@@ -11,7 +11,7 @@ from conftest import TINY_PLAN_ARGS, grid_plan_text
 from acquisition import api
 from acquisition.cli import main
 from acquisition.formats.merl import write_merl
-from acquisition.session.engine import session_status
+from acquisition.session.status import session_status
 from acquisition.tables import IsotropicTable
 from drivers.errors import SafetyStop
 

@@ -22,7 +22,8 @@ from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.devices import LightStageDevices, open_lightstage
 from acquisition.lightstage.reduce import iter_lightstage_samples, led_calibration
 from acquisition.lightstage.sequences import SEQUENCES, capture_steps, sequence_frames
-from acquisition.session.engine import SessionFolder, StepEvent
+from acquisition.session.engine import StepEvent
+from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
 from acquisition.tables import IsotropicTable
@@ -242,7 +243,7 @@ def test_cli_capture_prints_estimate_and_errors(tmp_path: Path,
 
 
 def test_resume_refuses_a_session_that_is_not_a_light_stage_one(tmp_path: Path) -> None:
-    from acquisition.session.engine import create_session
+    from acquisition.session.folder import create_session
 
     create_session(tmp_path / "g", ROOT / "examples" / "rig-sim.toml",
                    ROOT / "examples" / "plan-quick.toml", material=GGX)

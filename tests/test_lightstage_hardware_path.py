@@ -22,7 +22,8 @@ from acquisition.lightstage.capture import capture_lightstage, resume_lightstage
 from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.devices import exposure_interval, open_lightstage
 from acquisition.lightstage.reduce import led_calibration
-from acquisition.session.engine import SessionFolder, StepEvent
+from acquisition.session.engine import StepEvent
+from acquisition.session.folder import SessionFolder
 from acquisition.session.observers import Observer
 from drivers.camera import CaptureInfo
 from drivers.errors import CommunicationError, ConfigError, HardwareError

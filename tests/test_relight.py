@@ -17,7 +17,7 @@ from acquisition.lightstage.envmap import latlong_directions, read_exr, write_ex
 from acquisition.lightstage.field import ReflectanceField, load_field, write_field
 from acquisition.lightstage.relight import light_weights, relight
 from acquisition.lightstage.render import render_environment
-from acquisition.session.engine import SessionFolder
+from acquisition.session.folder import SessionFolder
 from simulators.materials import material_from_spec
 
 ROOT = Path(__file__).resolve().parent.parent

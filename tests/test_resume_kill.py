@@ -16,7 +16,7 @@ import pytest
 from conftest import grid_plan_text
 
 from acquisition import api
-from acquisition.session.engine import JOURNAL_FILE, frame_name
+from acquisition.session.folder import JOURNAL_FILE, frame_name
 from acquisition.session.journal import Journal
 from acquisition.session.storage import TMP_SUFFIX, sha256_file
 from acquisition.tables import IsotropicTable

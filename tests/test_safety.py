@@ -25,7 +25,7 @@ from acquisition.config.rig import load_rig
 from acquisition.devices.console import open_console
 from acquisition.devices.rig import HealthLimits, ServoHealthError, open_devices
 from acquisition.planning.planner import Planner
-from acquisition.session.engine import JOURNAL_FILE
+from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.interrupts import EXIT_INTERRUPTED, sigint_stops_motion
 from acquisition.session.journal import Journal
 from acquisition.tables import IsotropicTable

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.session.engine import JOURNAL_FILE
+from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.journal import Journal
 from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable

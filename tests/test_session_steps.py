@@ -12,7 +12,8 @@ import pytest
 from acquisition import api
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import PlannedPose, Sweep
-from acquisition.session.engine import JOURNAL_FILE, SessionEngine, create_session
+from acquisition.session.engine import SessionEngine
+from acquisition.session.folder import JOURNAL_FILE, create_session
 from acquisition.session.journal import Journal
 from acquisition.session.observers import CallbackObserver, LiveReduction, Observer
 from acquisition.session.steps import (

@@ -14,7 +14,7 @@ from conftest import TINY_PLAN_ARGS, grid_plan_text
 import simulators.camera
 from acquisition import api
 from acquisition.cli import main
-from acquisition.session.engine import JOURNAL_FILE, SessionFolder
+from acquisition.session.folder import JOURNAL_FILE, SessionFolder
 from acquisition.session.journal import Journal
 from drivers.errors import SessionError, StorageError
 

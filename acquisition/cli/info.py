@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from acquisition.formats.export import table_info
-from acquisition.session.engine import session_status
+from acquisition.session.status import session_status
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -22,7 +22,8 @@ from acquisition.lightstage.config import StageConfig, stage_config
 from acquisition.lightstage.devices import LightStageDevices, OperatorPrompt, open_lightstage, operator_prompt
 from acquisition.lightstage.sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
 from acquisition.planning.planner import Planner
-from acquisition.session.engine import INFO_FILE, SessionEngine, SessionFolder, create_session
+from acquisition.session.engine import SessionEngine
+from acquisition.session.folder import INFO_FILE, SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
 from drivers.errors import SessionError

@@ -28,7 +28,7 @@ import numpy as np
 from acquisition.lightstage.envmap import read_exr, write_exr
 from acquisition.lightstage.reduce import _done, dark_rate, led_calibration, light_of, load_frame
 from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect
-from acquisition.session.engine import SessionFolder
+from acquisition.session.folder import SessionFolder
 from acquisition.session.steps import POSE
 from drivers.errors import SessionError
 

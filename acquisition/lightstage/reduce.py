@@ -40,7 +40,7 @@ from acquisition.reduction.image import (
 )
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
 from acquisition.reduction.point import session_provenance
-from acquisition.session.engine import SessionFolder
+from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
 from acquisition.session.steps import DARK, POSE, REFERENCE
 from acquisition.tables import IsotropicTable, MerlTable

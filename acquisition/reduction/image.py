@@ -49,14 +49,9 @@ from acquisition.formats.merl import write_merl
 from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
 from acquisition.reduction.point import Reduction, find_bundle, linearize_with_variance, session_provenance
-from acquisition.session.engine import (
-    HDR_DONE_META,
-    POSE,
-    REFERENCE,
-    SessionFolder,
-    camera_noise_model,
-    hdr_group,
-)
+from acquisition.session.engine import POSE, REFERENCE
+from acquisition.session.folder import SessionFolder
+from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable, MerlTable
 from calibration.bundle import CalibrationBundle

@@ -36,14 +36,9 @@ import numpy as np
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.kinematics import Pose
-from acquisition.session.engine import (
-    HDR_DONE_META,
-    POSE,
-    REFERENCE,
-    SessionFolder,
-    camera_noise_model,
-    hdr_group,
-)
+from acquisition.session.engine import POSE, REFERENCE
+from acquisition.session.folder import SessionFolder
+from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
@@ -126,7 +121,7 @@ def frame_signal(
 def linearize_with_variance(path: Path, rig: RigConfig,
                             bundle: CalibrationBundle | None = None) -> LinearImage:
     """Linearize a frame with the bundle's corrections and a variance per superpixel (the
-    bundle's noise model, else :func:`acquisition.session.engine.camera_noise_model`)."""
+    bundle's noise model, else :func:`acquisition.session.hdr.camera_noise_model`)."""
     frame = load_raw(path)
     iso = float(frame.iso or rig.camera.iso)
     if bundle is not None and bundle.noise_for(iso) is not None:

@@ -1,39 +1,22 @@
-"""Capture sessions: a folder that holds everything needed to finish, check and reduce a run.
-
-Layout of a session folder (see docs/formats.md)::
-
-    rig.toml        copy of the rig file used
-    plan.toml       copy of the plan file used
-    calibration/    copy of the calibration used, when one was given
-    session.json    material, seed, versions (provenance)
-    journal.sqlite  every step's intent and completion (see acquisition.session.journal)
-    frames/         RAW frames, written atomically, named step-NNNNNN.dng
-
-:func:`create_session` lays the folder out (and for ``gonio capture`` plans the sweep once,
-recording every step); :class:`SessionEngine` runs a plan of step records
-(:mod:`acquisition.session.steps`) against the journal, skipping what is done, so ``gonio resume``
-after Ctrl-C, a crash or a power cut continues exactly where the run stopped.
+"""The session engine: runs a plan of step records (:mod:`acquisition.session.steps`) on open
+devices against the journal, skipping what is done, so a run stopped by Ctrl-C, a crash or a
+power cut continues exactly where it stopped. Every frame is written atomically and hashed.
 """
 
 from __future__ import annotations
 
 import errno
-import json
 import math
-import shutil
-import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
-
-from acquisition.config.plan import PlanSpec, load_plan
-from acquisition.config.rig import RigConfig, load_rig
 from acquisition.geometry.kinematics import Pose
-from acquisition.planning.planner import Planner, Sweep
+from acquisition.planning.planner import Planner
+from acquisition.session.folder import SessionFolder, frame_name, reference_geometry
+from acquisition.session.hdr import HDR_DONE_META, HDR_NOTE, camera_noise_model, hdr_group
 from acquisition.session.journal import Journal, StepRecord
 from acquisition.session.steps import (
     CUSTOM,
@@ -48,12 +31,9 @@ from acquisition.session.steps import (
     Move,
     Reference,
     Step,
-    capture_steps,
-    sweep_steps,
 )
 from acquisition.session.storage import TMP_SUFFIX, atomic_target, sha256_file
 from calibration.hdr import BracketPolicy, bracket
-from calibration.linearize import NoiseModel
 from drivers.errors import (
     CommunicationError,
     GonioError,
@@ -66,50 +46,10 @@ from drivers.errors import (
 if TYPE_CHECKING:
     from acquisition.session.observers import Observer
 
-RIG_FILE = "rig.toml"
-PLAN_FILE = "plan.toml"
-INFO_FILE = "session.json"
-JOURNAL_FILE = "journal.sqlite"
-FRAMES_DIR = "frames"
-CALIBRATION_DIR = "calibration"
-HDR_SWEEP_META = "hdr_sweep"
-"""Journal meta of an HDR capture session: its planned poses [θi, θr, Δφ, joints] (deg)."""
-HDR_DONE_META = "hdr_done:"
-"""Journal meta key prefix: ``hdr_done:<first step>`` → frames of a completed bracket."""
-HDR_NOTE = "hdr="
-"""Journal note prefix of an HDR bracket's frames: ``hdr=<first step>:<index>``."""
 
 
-def hdr_group(note: str | None) -> int | None:
-    """The first step of the HDR bracket a journal row belongs to (None: not an HDR frame)."""
-    if not note or not note.startswith(HDR_NOTE):
-        return None
-    return int(note[len(HDR_NOTE):].split(":", 1)[0])
 
 
-def camera_noise_model(rig: RigConfig, iso: float, bundle: Any = None) -> NoiseModel:
-    """The noise model for HDR weights at ``iso``: the calibration bundle's, else (simulated
-    camera only) the nominal one of the rig's ``[camera.sensor]``.
-
-    Raises
-    ------
-    SessionError
-        A real camera without a measured noise model.
-    """
-    noise = bundle.noise_for(iso) if bundle is not None else None
-    if noise is not None:
-        return noise
-    if rig.camera.driver != "simulated":
-        raise SessionError(
-            f"HDR on rig '{rig.name}' needs a noise model at ISO {iso:g}: run "
-            "`gonio calibrate noise` and give the bundle with --calibration"
-        )
-    from simulators.sensor import SensorModel
-
-    sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
-    gain = sensor.gain_at(iso)
-    read = math.sqrt((sensor.read_noise_e / gain) ** 2 + sensor.black_noise_dn**2 + 1 / 12)
-    return NoiseModel(gain, read, iso)
 
 
 class CaptureDevices(Protocol):
@@ -135,177 +75,20 @@ class CaptureDevices(Protocol):
         stops inside it, since host time is not rig time scaled up."""
 
 
-@dataclass(frozen=True)
-class SessionInfo:
-    """Provenance of a session (``session.json``)."""
-
-    material: str | None
-    seed: int
-    created_at: float
-    rig_name: str
-    plan_name: str
-    estimated_s: float
-    calibration: str | None = None
-    """Path of the copied calibration inside the session folder, if any."""
-    scripted: bool = False
-    """True when a script's step plan (not the plan file's sweep) drives the session."""
-
-    def to_json(self) -> dict[str, Any]:
-        return self.__dict__.copy()
 
 
-class SessionFolder:
-    """An existing session folder (see :func:`create_session`)."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        for name in (RIG_FILE, PLAN_FILE, INFO_FILE, JOURNAL_FILE):
-            if not (self.path / name).is_file():
-                raise SessionError(
-                    f"{self.path} is not a gonio session ({name} missing): "
-                    "give the folder `gonio capture --out` wrote"
-                )
-        self.info = SessionInfo(**json.loads((self.path / INFO_FILE).read_text()))
-
-    @property
-    def frames_dir(self) -> Path:
-        return self.path / FRAMES_DIR
-
-    def rig(self) -> RigConfig:
-        return load_rig(self.path / RIG_FILE)
-
-    def plan(self) -> PlanSpec:
-        return load_plan(self.path / PLAN_FILE)
-
-    def journal(self, *, readonly: bool = False) -> Journal:
-        return Journal(self.path / JOURNAL_FILE, readonly=readonly)
-
-    def planner(self) -> Planner:
-        return Planner.for_plan(self.rig(), self.plan())
-
-    @property
-    def calibration(self) -> Path | None:
-        """The copied calibration (file or folder), if the session has one."""
-        return None if self.info.calibration is None else self.path / self.info.calibration
 
 
-def reference_geometry(rig: RigConfig, planner: Planner) -> tuple[Pose, dict[str, float]]:
-    """The white reference's pose (deg) and joints (deg) from the rig file."""
-    wr = rig.white_reference
-    pose = Pose(wr.theta_i, wr.theta_r, wr.delta_phi)
-    return pose, dict(planner.joints_for(pose))
 
 
-def schedule_steps(sweep: Sweep, reference_joints: dict[str, float], reference_pose: Pose,
-                   reference_every: int) -> list[tuple[str, float, float, float, dict[str, float]]]:
-    """Journal rows (kind, θi, θr, Δφ, joints) of :func:`acquisition.session.steps.sweep_steps`."""
-    ref = Reference(reference_pose, reference_joints)
-    rows: list[tuple[str, float, float, float, dict[str, float]]] = []
-    current: Move | None = None
-    for step in sweep_steps(sweep, reference_every=reference_every, reference=ref):
-        if isinstance(step, Reference):
-            rows.append((REFERENCE, *reference_pose.as_tuple(), dict(reference_joints)))
-        elif isinstance(step, Move):
-            current = step
-        elif isinstance(step, Expose):
-            assert current is not None and current.joints is not None
-            rows.extend([(POSE, *current.pose.as_tuple(), dict(current.joints))] * len(step.bracket))
-    return rows
 
 
-def steps_from_journal(records: Iterable[StepRecord]) -> Iterator[Step]:
-    """Replay a pre-planned session (``gonio capture``): its journal rows as step records."""
-    for rec in records:
-        pose = None if rec.theta_i is None else Pose(rec.theta_i, rec.theta_r, rec.delta_phi)
-        if rec.kind == REFERENCE:
-            yield Reference(pose, rec.joints_cmd)
-        elif rec.kind == POSE:
-            assert pose is not None
-            yield Move(pose, rec.joints_cmd)
-            yield Expose()
-        else:
-            raise SessionError(
-                f"journal step {rec.step} is a '{rec.kind}' step of a scripted session: "
-                "rerun its script to continue it"
-            )
-        yield Checkpoint()
 
 
-def copy_calibration(source: str | Path, out: Path) -> str:
-    """Copy a calibration file or folder into ``out/calibration``; returns its relative path."""
-    source = Path(source)
-    if source.is_dir():
-        shutil.copytree(source, out / CALIBRATION_DIR)
-        return CALIBRATION_DIR
-    if not source.is_file():
-        raise SessionError(f"calibration {source} does not exist: give a calibration file or folder")
-    (out / CALIBRATION_DIR).mkdir()
-    shutil.copyfile(source, out / CALIBRATION_DIR / source.name)
-    return f"{CALIBRATION_DIR}/{source.name}"
 
 
-def create_session(
-    out: str | Path,
-    rig_path: str | Path,
-    plan_path: str | Path,
-    *,
-    material: str | None,
-    seed: int = 0,
-    calibration: str | Path | None = None,
-    scripted: bool = False,
-) -> tuple[SessionFolder, Sweep | None]:
-    """Lay out a new session folder; refuses an existing one.
-
-    Unless ``scripted``, the plan file's sweep is planned and every step recorded in the
-    journal now; a scripted session's steps are journaled as its script reaches them. With
-    ``[capture] hdr = true`` the planned poses go to the journal's meta instead and each
-    bracket's frames are journaled as they are taken.
-    """
-    out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise SessionError(
-            f"{out} already exists: choose a new --out folder, or `gonio resume {out}` to continue it"
-        )
-    rig = load_rig(rig_path)
-    plan = load_plan(plan_path)
-    planner = Planner.for_plan(rig, plan)
-    ref_pose, ref_joints = reference_geometry(rig, planner)
-    sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
-    hdr = sweep is not None and plan.capture.hdr
-    if sweep is not None and not sweep.steps:
-        raise SessionError(f"plan {plan_path} leaves no measurable pose on this rig: widen its ranges")
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        (out / FRAMES_DIR).mkdir()
-        shutil.copyfile(rig_path, out / RIG_FILE)
-        shutil.copyfile(plan_path, out / PLAN_FILE)
-        cal = None if calibration is None else copy_calibration(calibration, out)
-        info = SessionInfo(material, seed, time.time(), rig.name, plan.name,
-                           sweep.estimated_s if sweep else 0.0, cal, scripted)
-        (out / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
-        with Journal(out / JOURNAL_FILE) as journal:
-            if hdr and sweep is not None:  # frames per pose known only once bracketed
-                journal.set_meta(HDR_SWEEP_META, [[*p.pose.as_tuple(), dict(p.joints)]
-                                                  for p in sweep.steps])
-            elif sweep is not None:
-                journal.plan_steps(
-                    schedule_steps(sweep, ref_joints, ref_pose, plan.capture.reference_every)
-                )
-                journal.set_meta("rejected", sweep.rejected_counts())
-                journal.set_meta("estimate", sweep.summary())
-    except OSError as exc:
-        shutil.rmtree(out, ignore_errors=True)
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            raise StorageError(f"disk full creating session {out}: free space, then retry") from None
-        raise
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
-        raise
-    return SessionFolder(out), sweep
 
 
-def frame_name(step: int) -> str:
-    return f"step-{step:06d}.dng"
 
 
 
@@ -751,162 +534,11 @@ def _same_joints(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
     return a.keys() == b.keys() and all(math.isclose(a[k], b[k], abs_tol=1e-9) for k in a)
 
 
-class CaptureEngine:
-    """Runs a pre-planned session's remaining steps (``gonio capture`` / ``gonio resume``).
-
-    A thin wrapper: the journal's rows become step records (:func:`steps_from_journal`)
-    run by a :class:`SessionEngine` with a progress observer.
-    """
-
-    def __init__(
-        self,
-        folder: SessionFolder,
-        devices: CaptureDevices,
-        saturated: Callable[[Path], bool],
-        progress: ProgressCallback | None = None,
-        observers: Sequence[Observer] = (),
-        planner: Planner | None = None,
-    ) -> None:
-        from acquisition.session.observers import ProgressObserver
-
-        obs = list(observers)
-        if progress is not None:
-            obs.append(ProgressObserver(progress))
-        self.engine = SessionEngine(folder, devices, planner or folder.planner(),
-                                    saturated=saturated, observers=obs)
-        self.folder = folder
-
-    def verify_done_steps(self, journal: Journal) -> int:
-        return self.engine.verify_done_steps(journal)
-
-    def run(self) -> dict[str, int]:
-        """Capture every step not yet done; returns the journal's status counts."""
-        if self.folder.info.scripted:
-            raise SessionError(
-                f"{self.folder.path} is a scripted session: rerun its script to continue it"
-            )
-        with self.folder.journal() as journal:
-            records = list(journal.steps())
-            hdr_sweep = journal.meta(HDR_SWEEP_META)
-        if hdr_sweep is not None:
-            eng = self.engine
-            every = eng.plan.capture.reference_every
-            poses = [(Pose(ti, tr, dp), joints) for ti, tr, dp, joints in hdr_sweep]
-            refs = 2 + ((len(poses) - 1) // every if every else 0)
-            steps = capture_steps(poses, reference_every=every,
-                                  reference=Reference(eng.ref_pose, eng.ref_joints),
-                                  expose=ExposeHDR())
-            return eng.run(steps, total=len(poses) + refs)  # a lower bound: ≥ 1 frame per pose
-        return self.engine.run(steps_from_journal(records))
 
 
 class _Retake(Exception):
     """Internal: discard the frame just written and expose again."""
 
 
-# ---------------------------------------------------------------------------- gonio info
-@dataclass(frozen=True)
-class SessionStatus:
-    """What ``gonio info DIR`` prints: progress, timing, errors, white-reference drift."""
-
-    folder: SessionFolder
-    counts: dict[str, int]
-    by_kind: dict[str, tuple[int, int]]
-    """kind → (done, total)."""
-    host_busy_s: float
-    """Sum over done steps of host time from start to completion, s."""
-    host_span_s: float | None
-    """Host time from the first step started to the last completed, s."""
-    device_s: float | None
-    """Device-clock time over all runs (simulated rigs), s."""
-    runs: int
-    retakes: int
-    """Steps taken more than once (crash, hash mismatch, interrupted)."""
-    events: list[tuple[float, str, int | None, str]]
-    """Warnings and errors from the journal: (host time, level, step, message)."""
-    drift_pct: float | None
-    """Peak-to-peak change of the white reference's ROI signal, % of its mean."""
-
-    @property
-    def total(self) -> int:
-        return sum(self.counts.values())
-
-    @property
-    def done(self) -> int:
-        return self.counts.get("done", 0)
-
-    def lines(self, max_events: int = 10) -> list[str]:
-        info = self.folder.info
-        pct = 100.0 * self.done / self.total if self.total else 0.0
-        out = [
-            f"session   {self.folder.path}  (rig '{info.rig_name}', plan '{info.plan_name}', "
-            f"material {info.material}, seed {info.seed})",
-            f"progress  {self.done}/{self.total} steps done ({pct:.0f} %)"
-            + "".join(f"; {k} {d}/{t}" for k, (d, t) in self.by_kind.items()),
-        ]
-        if self.done < self.total:
-            out.append(f"          {self.total - self.done} to do: `gonio resume {self.folder.path}`")
-        timing = f"timing    host {self.host_busy_s:.1f} s busy"
-        if self.host_span_s is not None:
-            timing += f" over {self.host_span_s:.1f} s"
-        if self.device_s is not None:
-            timing += f"; device clock {self.device_s:.1f} s"
-        if info.estimated_s:
-            timing += f" (planned {info.estimated_s:.1f} s)"
-        timing += f"; {self.runs} run(s), {self.retakes} step(s) retaken"
-        out.append(timing)
-        if self.drift_pct is not None:
-            out.append(f"drift     white reference {self.drift_pct:.2f} % peak to peak")
-        if info.calibration:
-            out.append(f"calib     {self.folder.path / info.calibration}")
-        shown = self.events[-max_events:]
-        out.append(f"errors    {len(self.events)} warning/error event(s)"
-                   + (f", last {len(shown)}:" if shown else ""))
-        for at, level, step, msg in shown:
-            stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(at))
-            where = f" step {step}" if step is not None else ""
-            out.append(f"  {stamp} {level}{where}: {msg}")
-        return out
 
 
-def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
-    """Read a session folder (also while a capture writes it) into a :class:`SessionStatus`."""
-    folder = SessionFolder(path)
-    with folder.journal(readonly=True) as journal:
-        records = list(journal.steps())
-        counts = journal.counts()
-        all_events = journal.events()
-    by_kind: dict[str, tuple[int, int]] = {}
-    for r in records:
-        d, t = by_kind.get(r.kind, (0, 0))
-        by_kind[r.kind] = (d + (r.status == "done"), t + 1)
-    done = [r for r in records if r.status == "done" and r.completed_at is not None]
-    busy = sum(r.completed_at - r.started_at for r in done
-               if r.completed_at is not None and r.started_at is not None)
-    starts = [r.started_at for r in records if r.started_at is not None]
-    ends = [r.completed_at for r in done if r.completed_at is not None]
-    span = max(ends) - min(starts) if starts and ends else None
-    # The device clock restarts with each run: sum the rises between completions.
-    device = None
-    times = [r.device_time_s for r in sorted(done, key=lambda r: r.completed_at or 0.0)
-             if r.device_time_s is not None]
-    if times:
-        device = times[0] + sum(b - a if b >= a else b for a, b in zip(times, times[1:], strict=False))
-    drift_pct = None
-    refs = [r for r in done if r.kind == REFERENCE and r.frame]
-    # Drift compares like with like: references taken with the first one's joints (a light
-    # stage's per-LED white frames are lit by different lights).
-    refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
-    if drift and len(refs) >= 2:
-        from acquisition.reduction.point import frame_signal
-
-        roi = folder.rig().camera.roi
-        sig = np.array([frame_signal(folder.frames_dir / str(r.frame), roi, r.step).signal
-                        for r in refs])
-        drift_pct = float(np.max(np.ptp(sig, axis=0) / np.mean(sig, axis=0)) * 100.0)
-    return SessionStatus(
-        folder, counts, by_kind, busy, span, device,
-        sum(1 for e in all_events if e[3].startswith("run started")),
-        sum(1 for r in records if r.attempts > 1),
-        [e for e in all_events if e[1] in ("warning", "error")], drift_pct,
-    )

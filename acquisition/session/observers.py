@@ -20,7 +20,8 @@ from acquisition.geometry.kinematics import Pose
 from acquisition.session.steps import POSE, REFERENCE
 
 if TYPE_CHECKING:
-    from acquisition.session.engine import SessionFolder, StepEvent
+    from acquisition.session.engine import StepEvent
+    from acquisition.session.folder import SessionFolder
     from acquisition.session.journal import StepRecord
     from acquisition.tables import IsotropicTable
 

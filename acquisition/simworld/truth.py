@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.reduction.point import binning_pose
-from acquisition.session.engine import POSE, SessionFolder
+from acquisition.session.engine import POSE
+from acquisition.session.folder import SessionFolder
 from acquisition.tables import IsotropicTable
 from simulators.materials import Material, material_from_spec
 

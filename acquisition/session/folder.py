@@ -1,0 +1,219 @@
+"""Capture sessions: a folder that holds everything needed to finish, check and reduce a run.
+
+Layout of a session folder (see docs/formats.md)::
+
+    rig.toml        copy of the rig file used
+    plan.toml       copy of the plan file used
+    calibration/    copy of the calibration used, when one was given
+    session.json    material, seed, versions (provenance)
+    journal.sqlite  every step's intent and completion (see acquisition.session.journal)
+    frames/         RAW frames, written atomically, named step-NNNNNN.dng
+
+:func:`create_session` lays the folder out (for ``gonio capture`` it records every planned step
+in the journal); :class:`SessionFolder` opens an existing one.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from acquisition.config.plan import PlanSpec, load_plan
+from acquisition.config.rig import RigConfig, load_rig
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner, Sweep
+from acquisition.session.hdr import HDR_SWEEP_META
+from acquisition.session.journal import Journal
+from acquisition.session.steps import (
+    POSE,
+    REFERENCE,
+    Expose,
+    Move,
+    Reference,
+    sweep_steps,
+)
+from drivers.errors import (
+    SessionError,
+    StorageError,
+)
+
+if TYPE_CHECKING:
+    pass
+
+
+RIG_FILE = "rig.toml"
+
+
+PLAN_FILE = "plan.toml"
+
+
+INFO_FILE = "session.json"
+
+
+JOURNAL_FILE = "journal.sqlite"
+
+
+FRAMES_DIR = "frames"
+
+
+CALIBRATION_DIR = "calibration"
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """Provenance of a session (``session.json``)."""
+
+    material: str | None
+    seed: int
+    created_at: float
+    rig_name: str
+    plan_name: str
+    estimated_s: float
+    calibration: str | None = None
+    """Path of the copied calibration inside the session folder, if any."""
+    scripted: bool = False
+    """True when a script's step plan (not the plan file's sweep) drives the session."""
+
+    def to_json(self) -> dict[str, Any]:
+        return self.__dict__.copy()
+
+
+class SessionFolder:
+    """An existing session folder (see :func:`create_session`)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        for name in (RIG_FILE, PLAN_FILE, INFO_FILE, JOURNAL_FILE):
+            if not (self.path / name).is_file():
+                raise SessionError(
+                    f"{self.path} is not a gonio session ({name} missing): "
+                    "give the folder `gonio capture --out` wrote"
+                )
+        self.info = SessionInfo(**json.loads((self.path / INFO_FILE).read_text()))
+
+    @property
+    def frames_dir(self) -> Path:
+        return self.path / FRAMES_DIR
+
+    def rig(self) -> RigConfig:
+        return load_rig(self.path / RIG_FILE)
+
+    def plan(self) -> PlanSpec:
+        return load_plan(self.path / PLAN_FILE)
+
+    def journal(self, *, readonly: bool = False) -> Journal:
+        return Journal(self.path / JOURNAL_FILE, readonly=readonly)
+
+    def planner(self) -> Planner:
+        return Planner.for_plan(self.rig(), self.plan())
+
+    @property
+    def calibration(self) -> Path | None:
+        """The copied calibration (file or folder), if the session has one."""
+        return None if self.info.calibration is None else self.path / self.info.calibration
+
+
+def reference_geometry(rig: RigConfig, planner: Planner) -> tuple[Pose, dict[str, float]]:
+    """The white reference's pose (deg) and joints (deg) from the rig file."""
+    wr = rig.white_reference
+    pose = Pose(wr.theta_i, wr.theta_r, wr.delta_phi)
+    return pose, dict(planner.joints_for(pose))
+
+
+def schedule_steps(sweep: Sweep, reference_joints: dict[str, float], reference_pose: Pose,
+                   reference_every: int) -> list[tuple[str, float, float, float, dict[str, float]]]:
+    """Journal rows (kind, θi, θr, Δφ, joints) of :func:`acquisition.session.steps.sweep_steps`."""
+    ref = Reference(reference_pose, reference_joints)
+    rows: list[tuple[str, float, float, float, dict[str, float]]] = []
+    current: Move | None = None
+    for step in sweep_steps(sweep, reference_every=reference_every, reference=ref):
+        if isinstance(step, Reference):
+            rows.append((REFERENCE, *reference_pose.as_tuple(), dict(reference_joints)))
+        elif isinstance(step, Move):
+            current = step
+        elif isinstance(step, Expose):
+            assert current is not None and current.joints is not None
+            rows.extend([(POSE, *current.pose.as_tuple(), dict(current.joints))] * len(step.bracket))
+    return rows
+
+
+def copy_calibration(source: str | Path, out: Path) -> str:
+    """Copy a calibration file or folder into ``out/calibration``; returns its relative path."""
+    source = Path(source)
+    if source.is_dir():
+        shutil.copytree(source, out / CALIBRATION_DIR)
+        return CALIBRATION_DIR
+    if not source.is_file():
+        raise SessionError(f"calibration {source} does not exist: give a calibration file or folder")
+    (out / CALIBRATION_DIR).mkdir()
+    shutil.copyfile(source, out / CALIBRATION_DIR / source.name)
+    return f"{CALIBRATION_DIR}/{source.name}"
+
+
+def create_session(
+    out: str | Path,
+    rig_path: str | Path,
+    plan_path: str | Path,
+    *,
+    material: str | None,
+    seed: int = 0,
+    calibration: str | Path | None = None,
+    scripted: bool = False,
+) -> tuple[SessionFolder, Sweep | None]:
+    """Lay out a new session folder; refuses an existing one.
+
+    Unless ``scripted``, the plan file's sweep is planned and every step recorded in the
+    journal now; a scripted session's steps are journaled as its script reaches them. With
+    ``[capture] hdr = true`` the planned poses go to the journal's meta instead and each
+    bracket's frames are journaled as they are taken.
+    """
+    out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SessionError(
+            f"{out} already exists: choose a new --out folder, or `gonio resume {out}` to continue it"
+        )
+    rig = load_rig(rig_path)
+    plan = load_plan(plan_path)
+    planner = Planner.for_plan(rig, plan)
+    ref_pose, ref_joints = reference_geometry(rig, planner)
+    sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
+    hdr = sweep is not None and plan.capture.hdr
+    if sweep is not None and not sweep.steps:
+        raise SessionError(f"plan {plan_path} leaves no measurable pose on this rig: widen its ranges")
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        (out / FRAMES_DIR).mkdir()
+        shutil.copyfile(rig_path, out / RIG_FILE)
+        shutil.copyfile(plan_path, out / PLAN_FILE)
+        cal = None if calibration is None else copy_calibration(calibration, out)
+        info = SessionInfo(material, seed, time.time(), rig.name, plan.name,
+                           sweep.estimated_s if sweep else 0.0, cal, scripted)
+        (out / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
+        with Journal(out / JOURNAL_FILE) as journal:
+            if hdr and sweep is not None:  # frames per pose known only once bracketed
+                journal.set_meta(HDR_SWEEP_META, [[*p.pose.as_tuple(), dict(p.joints)]
+                                                  for p in sweep.steps])
+            elif sweep is not None:
+                journal.plan_steps(
+                    schedule_steps(sweep, ref_joints, ref_pose, plan.capture.reference_every)
+                )
+                journal.set_meta("rejected", sweep.rejected_counts())
+                journal.set_meta("estimate", sweep.summary())
+    except OSError as exc:
+        shutil.rmtree(out, ignore_errors=True)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise StorageError(f"disk full creating session {out}: free space, then retry") from None
+        raise
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    return SessionFolder(out), sweep
+
+
+def frame_name(step: int) -> str:
+    return f"step-{step:06d}.dng"

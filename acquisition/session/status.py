@@ -1,0 +1,126 @@
+"""``gonio info``: progress, timing, errors and white-reference drift of a session folder."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from acquisition.session.folder import SessionFolder
+from acquisition.session.steps import (
+    REFERENCE,
+)
+
+if TYPE_CHECKING:
+    pass
+
+
+# ---------------------------------------------------------------------------- gonio info
+@dataclass(frozen=True)
+class SessionStatus:
+    """What ``gonio info DIR`` prints: progress, timing, errors, white-reference drift."""
+
+    folder: SessionFolder
+    counts: dict[str, int]
+    by_kind: dict[str, tuple[int, int]]
+    """kind → (done, total)."""
+    host_busy_s: float
+    """Sum over done steps of host time from start to completion, s."""
+    host_span_s: float | None
+    """Host time from the first step started to the last completed, s."""
+    device_s: float | None
+    """Device-clock time over all runs (simulated rigs), s."""
+    runs: int
+    retakes: int
+    """Steps taken more than once (crash, hash mismatch, interrupted)."""
+    events: list[tuple[float, str, int | None, str]]
+    """Warnings and errors from the journal: (host time, level, step, message)."""
+    drift_pct: float | None
+    """Peak-to-peak change of the white reference's ROI signal, % of its mean."""
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    @property
+    def done(self) -> int:
+        return self.counts.get("done", 0)
+
+    def lines(self, max_events: int = 10) -> list[str]:
+        info = self.folder.info
+        pct = 100.0 * self.done / self.total if self.total else 0.0
+        out = [
+            f"session   {self.folder.path}  (rig '{info.rig_name}', plan '{info.plan_name}', "
+            f"material {info.material}, seed {info.seed})",
+            f"progress  {self.done}/{self.total} steps done ({pct:.0f} %)"
+            + "".join(f"; {k} {d}/{t}" for k, (d, t) in self.by_kind.items()),
+        ]
+        if self.done < self.total:
+            out.append(f"          {self.total - self.done} to do: `gonio resume {self.folder.path}`")
+        timing = f"timing    host {self.host_busy_s:.1f} s busy"
+        if self.host_span_s is not None:
+            timing += f" over {self.host_span_s:.1f} s"
+        if self.device_s is not None:
+            timing += f"; device clock {self.device_s:.1f} s"
+        if info.estimated_s:
+            timing += f" (planned {info.estimated_s:.1f} s)"
+        timing += f"; {self.runs} run(s), {self.retakes} step(s) retaken"
+        out.append(timing)
+        if self.drift_pct is not None:
+            out.append(f"drift     white reference {self.drift_pct:.2f} % peak to peak")
+        if info.calibration:
+            out.append(f"calib     {self.folder.path / info.calibration}")
+        shown = self.events[-max_events:]
+        out.append(f"errors    {len(self.events)} warning/error event(s)"
+                   + (f", last {len(shown)}:" if shown else ""))
+        for at, level, step, msg in shown:
+            stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(at))
+            where = f" step {step}" if step is not None else ""
+            out.append(f"  {stamp} {level}{where}: {msg}")
+        return out
+
+
+def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
+    """Read a session folder (also while a capture writes it) into a :class:`SessionStatus`."""
+    folder = SessionFolder(path)
+    with folder.journal(readonly=True) as journal:
+        records = list(journal.steps())
+        counts = journal.counts()
+        all_events = journal.events()
+    by_kind: dict[str, tuple[int, int]] = {}
+    for r in records:
+        d, t = by_kind.get(r.kind, (0, 0))
+        by_kind[r.kind] = (d + (r.status == "done"), t + 1)
+    done = [r for r in records if r.status == "done" and r.completed_at is not None]
+    busy = sum(r.completed_at - r.started_at for r in done
+               if r.completed_at is not None and r.started_at is not None)
+    starts = [r.started_at for r in records if r.started_at is not None]
+    ends = [r.completed_at for r in done if r.completed_at is not None]
+    span = max(ends) - min(starts) if starts and ends else None
+    # The device clock restarts with each run: sum the rises between completions.
+    device = None
+    times = [r.device_time_s for r in sorted(done, key=lambda r: r.completed_at or 0.0)
+             if r.device_time_s is not None]
+    if times:
+        device = times[0] + sum(b - a if b >= a else b for a, b in zip(times, times[1:], strict=False))
+    drift_pct = None
+    refs = [r for r in done if r.kind == REFERENCE and r.frame]
+    # Drift compares like with like: references taken with the first one's joints (a light
+    # stage's per-LED white frames are lit by different lights).
+    refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
+    if drift and len(refs) >= 2:
+        from acquisition.reduction.point import frame_signal
+
+        roi = folder.rig().camera.roi
+        sig = np.array([frame_signal(folder.frames_dir / str(r.frame), roi, r.step).signal
+                        for r in refs])
+        drift_pct = float(np.max(np.ptp(sig, axis=0) / np.mean(sig, axis=0)) * 100.0)
+    return SessionStatus(
+        folder, counts, by_kind, busy, span, device,
+        sum(1 for e in all_events if e[3].startswith("run started")),
+        sum(1 for r in records if r.attempts > 1),
+        [e for e in all_events if e[1] in ("warning", "error")], drift_pct,
+    )

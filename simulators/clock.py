@@ -31,6 +31,9 @@ class SimClock:
         Simulated seconds per host second (1.0 = real time, 20.0 = twenty times faster).
     """
 
+    follows_host = True
+    """Simulated time advances with host time (timeouts may be measured on the host clock)."""
+
     def __init__(self, time_scale: float = 1.0) -> None:
         if not time_scale > 0:
             raise ValueError(f"time_scale must be > 0, got {time_scale}")
@@ -92,6 +95,8 @@ class SteppedClock(SimClock):
     else moves the clock) and ``time_scale`` is reported as 1.0 for compatibility (the real
     ratio is unbounded). Thread-safe: concurrent advances add up.
     """
+
+    follows_host = False
 
     def __init__(self, start_s: float = 0.0) -> None:
         super().__init__(1.0)

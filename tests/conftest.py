@@ -86,7 +86,7 @@ def sim(clock):
 @pytest.fixture
 def sims(monkeypatch: pytest.MonkeyPatch) -> list:
     """Every simulated bus the code under test starts (to look at its servos afterwards)."""
-    import acquisition.devices.rig as devices_mod
+    import acquisition.simworld.servos as devices_mod
     from simulators.dynamixel import SimServoBus
 
     started: list[SimServoBus] = []

@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 
 from acquisition.config.rig import MOTION_POLL_S, load_rig, move_bus_time_s, sync_read_s
-from acquisition.devices.rig import make_clock, open_servos
+from acquisition.devices.servos import open_servos
 from acquisition.planning.planner import Planner
+from acquisition.simworld.servos import make_clock
 from drivers.dynamixel import Axis, MotionController, ServoBus
 from drivers.errors import ConfigError
 from simulators.clock import SimClock, SteppedClock

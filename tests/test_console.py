@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 
-import acquisition.devices.rig as devices_mod
+import acquisition.devices.servos as devices_mod
 from acquisition.cli import main
 from acquisition.devices.console import AxisStatus, format_status, open_console, scan_port
-from acquisition.devices.rig import LatencyWarning, ServoHealthError
+from acquisition.devices.health import ServoHealthError
+from acquisition.devices.servos import LatencyWarning
 from drivers.dynamixel import OverloadError, TorqueOffError
 from drivers.errors import CollisionError, CommunicationError, ConfigError, LimitError
 from simulators.dynamixel import SimServoBus

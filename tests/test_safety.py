@@ -23,7 +23,8 @@ from acquisition import api
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
 from acquisition.devices.console import open_console
-from acquisition.devices.rig import HealthLimits, ServoHealthError, open_devices
+from acquisition.devices.health import HealthLimits, ServoHealthError
+from acquisition.devices.rig import open_devices
 from acquisition.planning.planner import Planner
 from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.interrupts import EXIT_INTERRUPTED, sigint_stops_motion
@@ -275,7 +276,7 @@ def test_voltage_dip_pauses_until_back_in_range_with_hysteresis(
     # 9.8 V pauses (< 10.0); 10.1 V is not enough to resume (< 10.3); 12 V is.
     faults = ["voltage:id=1,volts=9.8", "voltage:id=1,volts=10.1,after=8",
               "voltage:id=1,volts=12,after=16"]
-    with caplog.at_level(logging.WARNING, logger="acquisition.devices.rig"), \
+    with caplog.at_level(logging.WARNING, logger="acquisition.devices"), \
             open_sim(EXAMPLES / "rig-sim.toml", faults, HealthLimits(poll_s=1.0)) as dev:
         readback = dev.move_to(TARGET)
     (pause,) = dev.health.pauses
@@ -339,7 +340,7 @@ def test_capture_paused_by_a_voltage_dip_gives_the_same_table(
 def test_opening_a_rig_sets_return_delay_zero(rig_sim_path) -> None:
     """The low-latency setting: every servo answers with Return Delay Time 0 once opened."""
     from acquisition.config.rig import load_rig
-    from acquisition.devices.rig import open_servos
+    from acquisition.devices.servos import open_servos
     from acquisition.planning.planner import Planner
     from drivers.dynamixel.bus import Addr
 

@@ -20,7 +20,7 @@ from acquisition.session.interrupts import sigint_stops_motion
 from drivers.dynamixel import COMMON_BAUD_RATES
 from drivers.errors import ConfigError
 
-LOGGERS = ("acquisition.devices.rig",)
+LOGGERS = ("acquisition.devices",)
 """Loggers whose records the CLI shows on stderr (health-guard pauses)."""
 
 

@@ -345,7 +345,7 @@ MOTION_POLL_S = 0.01
 """Pause (s) between the motion controller's control cycles (``acquisition.devices.rig`` uses it)."""
 RETURN_DELAY_S = 0.0
 """Return Delay Time before each status reply: gonio sets it to 0 when it opens a rig
-(``acquisition.devices.rig.set_low_latency``; the X-series factory value is 250 × 2 µs)."""
+(``acquisition.devices.servos.set_low_latency``; the X-series factory value is 250 × 2 µs)."""
 _READ_BYTES = {"status": 84, "safety": 7, "motion": 20}
 """Bytes per servo of the driver's sync reads: health status (64–147), torque and hardware
 error (64–70), goal/moving/velocity/position (116–135)."""

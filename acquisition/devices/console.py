@@ -31,9 +31,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from acquisition.config.rig import RigConfig, load_rig
-from acquisition.devices.rig import HealthLimits, ServoRig, open_servos, start_simulated_buses
+from acquisition.devices.health import HealthLimits
+from acquisition.devices.servos import ServoRig, open_servos, park_ticks
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner
+from acquisition.simworld.servos import start_simulated_buses
 from drivers.dynamixel import COMMON_BAUD_RATES, ServoBus
 from drivers.dynamixel.codes import HARDWARE_BITS
 from drivers.errors import ConfigError, LimitError, SafetyStop
@@ -74,7 +76,7 @@ class Console:
         The open servo side of the rig.
     health_wait_s:
         How long a move may wait for hot servos / an out-of-range supply (device s); 0 refuses
-        at once with a :class:`~acquisition.devices.rig.ServoHealthError`.
+        at once with a :class:`~acquisition.devices.health.ServoHealthError`.
     """
 
     def __init__(self, servos: ServoRig, *, health_wait_s: float = 0.0) -> None:
@@ -270,7 +272,8 @@ def scan_rig(rig_path: str | Path, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
         sims = {}
         if any(b.simulated for b in rig.buses.values()):
             sims = stack.enter_context(start_simulated_buses(
-                rig, Planner(rig), SimClock(rig.time_scale), sim_faults=sim_faults, seed=seed))
+                rig, SimClock(rig.time_scale), park_ticks(rig, Planner(rig)),
+                sim_faults=sim_faults, seed=seed))
         return [
             scan_port(sims[name].port if name in sims else cfg.port, bauds=bauds, ids=ids,
                       bus_name=name)

@@ -1,0 +1,225 @@
+"""The servo side of a rig: opening its buses (starting simulators for simulated ones), checking
+that every declared servo answers, and the motion controller behind the guard.
+
+Opening a bus checks, in order: the port opens (one-line error naming it), every servo the rig
+file declares on it answers (one error listing the missing IDs; if none answers but they do at
+another common baud rate, the error names that rate and the rig-file field to change), and on a
+real port the USB adapter's latency timer (a :class:`LatencyWarning` above 1 ms).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from acquisition.config.rig import MOTION_POLL_S, AxisConfig, RigConfig
+from acquisition.devices.health import HealthGuard, HealthLimits
+from acquisition.geometry.kinematics import Pose
+from acquisition.planning.planner import Planner
+from acquisition.simworld.servos import make_clock, start_simulated_buses, true_joints
+from drivers.dynamixel import (
+    COMMON_BAUD_RATES,
+    Axis,
+    MotionController,
+    ServoBus,
+)
+from drivers.dynamixel.bus import Addr
+from drivers.dynamixel.latency import SYSFS_USB_SERIAL, latency_warning
+from drivers.errors import ConfigError
+
+if TYPE_CHECKING:
+    from simulators.clock import SimClock
+    from simulators.dynamixel import SimServoBus
+
+LATENCY_SYSFS = SYSFS_USB_SERIAL
+"""Where the USB-serial adapters' ``latency_timer`` files live (a test may point it elsewhere)."""
+
+
+class LatencyWarning(UserWarning):
+    """The servo port's USB latency timer is above 1 ms (slow round trips)."""
+
+
+def make_axis(cfg: AxisConfig) -> Axis:
+    """The driver's axis for one rig-file axis."""
+    return Axis(
+        name=cfg.name, servo_id=cfg.servo_id, zero_tick=cfg.zero_tick, direction=cfg.direction,
+        min_deg=cfg.min_deg, max_deg=cfg.max_deg, profile_velocity=cfg.profile_velocity,
+        profile_acceleration=cfg.profile_acceleration,
+    )
+
+
+def park_ticks(rig: RigConfig, planner: Planner) -> dict[str, float]:
+    """``{axis: encoder ticks}`` of the park pose (where simulated servos start)."""
+    park = park_joints(rig, planner)
+    return {name: make_axis(cfg).deg_to_ticks(park[name]) for name, cfg in rig.axes.items()}
+
+
+def park_joints(rig: RigConfig, planner: Planner) -> dict[str, float]:
+    """Joints (deg) of the park pose: the white-reference pose, where a simulated rig starts.
+
+    A rig file has no park key yet; the white-reference pose is reachable and guarded by
+    construction (every capture starts and ends there).
+    """
+    wr = rig.white_reference
+    return dict(planner.joints_for(Pose(wr.theta_i, wr.theta_r, wr.delta_phi)))
+
+
+@dataclass
+class ServoRig:
+    """The servo side of an open rig: buses, motion controller, health guard, clock.
+
+    ``sims`` holds the in-process simulators of simulated buses (empty on hardware).
+    """
+
+    rig: RigConfig
+    planner: Planner
+    axes: dict[str, Axis]
+    buses: dict[str, ServoBus]
+    """``{bus name: ServoBus}``."""
+    motion: MotionController
+    health: HealthGuard
+    clock: SimClock | None
+    sims: dict[str, SimServoBus] = field(default_factory=dict)
+    """The in-process simulators of simulated buses, by bus name (empty on hardware)."""
+
+    @property
+    def park(self) -> dict[str, float]:
+        """Joints (deg) of the park pose, see :func:`park_joints`."""
+        return park_joints(self.rig, self.planner)
+
+    def bus_of(self, axis: str) -> ServoBus:
+        """The bus that drives ``axis``."""
+        return self.buses[self.rig.axes[axis].bus]
+
+    def sleep(self, seconds: float) -> None:
+        """Wait on the device clock (s)."""
+        if self.clock is not None:
+            self.clock.sleep(seconds)
+        else:  # pragma: no cover - hardware
+            time.sleep(seconds)
+
+    def move_to(self, joints: Mapping[str, float], *, health_wait_s: float | None = None
+                ) -> dict[str, float]:
+        """Health check (maybe a pause), guard, one sync write, readback; returns degrees."""
+        self.health.wait_until_healthy(health_wait_s)
+        return dict(self.motion.move_to(joints))
+
+    def true_joints(self) -> dict[str, float]:
+        """The simulators' TRUE joint angles (deg); simulated buses only."""
+        return true_joints(self.rig, self.sims, self.axes)
+
+
+def require_servos(bus: ServoBus, rig: RigConfig, bus_name: str) -> None:
+    """Check that every servo the rig declares on ``bus_name`` answers.
+
+    Raises
+    ------
+    ConfigError
+        None answers at the rig file's baud rate but they do at another common one (names it).
+    ServoSilentError
+        Some (or all) stay silent; the message lists the IDs and their axes.
+    """
+    ids = [a.servo_id for a in rig.axes.values() if a.bus == bus_name]
+    if not ids:
+        return
+    missing = [i for i in ids if bus.try_ping(i, attempts=2) is None]
+    if not missing:
+        return
+    if len(missing) == len(ids):
+        elsewhere = bus.scan(ids, [b for b in COMMON_BAUD_RATES if b != bus.baud])
+        if elsewhere:
+            baud, found = max(elsewhere.items(), key=lambda kv: len(kv[1]))
+            raise ConfigError(
+                f"{rig.path} [buses.{bus_name}]: no servo answers on {bus.port_name} at "
+                f"{bus.baud} baud, but ID {', '.join(map(str, sorted(found)))} answer at "
+                f"{baud} baud: set baud = {baud} in [buses.{bus_name}]"
+            )
+    bus.require(missing)  # one ServoSilentError naming every silent ID and its axis
+
+
+@contextmanager
+def open_servos(
+    rig: RigConfig,
+    planner: Planner,
+    *,
+    clock: SimClock | None = None,
+    sim_faults: Sequence[str] = (),
+    seed: int = 0,
+    prepare: bool = True,
+    health_limits: HealthLimits | None = None,
+) -> Iterator[ServoRig]:
+    """Open every servo bus of the rig (starting simulators for simulated ones).
+
+    Parameters
+    ----------
+    clock:
+        The device clock; the rig's own (:func:`make_clock`) when a bus is simulated and none
+        is given. On a :class:`SteppedClock` move timeouts are counted on it too.
+    prepare:
+        Write every axis' motion profile and switch torque on (what a capture needs). A
+        console leaves a real rig as it is (a servo in hardware error must stay readable).
+    """
+    if clock is None and any(b.simulated for b in rig.buses.values()):
+        clock = make_clock(rig)
+    axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}
+    with ExitStack() as stack:
+        sims = {}
+        if clock is not None:
+            sims = stack.enter_context(start_simulated_buses(
+                rig, clock, park_ticks(rig, planner), sim_faults=sim_faults, seed=seed))
+        buses: dict[str, ServoBus] = {}
+        for name, bus_cfg in rig.buses.items():
+            port = sims[name].port if name in sims else bus_cfg.port
+            bus = stack.enter_context(ServoBus(port, bus_cfg.baud, name=name))
+            buses[name] = bus
+            for a in rig.axes.values():
+                if a.bus == name:
+                    bus.label(a.servo_id, a.name)
+            if name not in sims:
+                message = latency_warning(port, LATENCY_SYSFS)
+                if message:
+                    warnings.warn(message, LatencyWarning, stacklevel=3)
+            require_servos(bus, rig, name)
+        by_axis = {name: buses[cfg.bus] for name, cfg in rig.axes.items()}
+        names = list(axes)
+
+        def guard(targets: Mapping[str, float]) -> None:
+            # Axes not asked to move stay where they are: check the pose they will make.
+            rest = [n for n in names if n not in targets]
+            full = {**motion.positions_deg(rest), **targets} if rest else dict(targets)
+            planner.check_joints(full)
+
+        timing: dict[str, Any] = {"sleep": clock.sleep} if clock is not None else {}
+        if clock is not None and not clock.follows_host:  # host time says nothing of a stepped rig
+            timing["monotonic"] = clock.now
+        motion = MotionController(axes.values(), by_axis, guard=guard, poll_s=MOTION_POLL_S,
+                                  **timing)
+        health = HealthGuard(
+            axes, by_axis, health_limits,
+            **({"now": clock.now, "sleep": clock.sleep} if clock is not None else {}),
+        )
+        if prepare:
+            set_low_latency(buses, rig)
+            motion.apply_profiles()
+            motion.set_torque(True)
+        yield ServoRig(rig, planner, axes, buses, motion, health, clock, sims)
+
+
+def set_low_latency(buses: Mapping[str, ServoBus], rig: RigConfig) -> None:
+    """Set every servo's Return Delay Time to 0 (the low-latency setting; factory 500 µs).
+
+    It lives in EEPROM, so it is written only where it differs and only while torque is off
+    (a servo already holding a pose keeps its value until the next cold start).
+    """
+    for name, bus in buses.items():
+        for axis in (a for a in rig.axes.values() if a.bus == name):
+            sid = axis.servo_id
+            if bus.read(sid, Addr.RETURN_DELAY_TIME, 1, signed=False, check_alert=False) == 0:
+                continue
+            torque_on, _ = bus.read_safety([sid])[sid]
+            if not torque_on:
+                bus.set_return_delay([sid], 0)

@@ -1,0 +1,35 @@
+"""The simulated camera of a servo rig: a RAW sensor rendering the scene the simulated servos'
+true angles make, with the sample holder (sample or white target, lamp drift) in front of it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from acquisition.config.rig import RigConfig
+from acquisition.geometry.kinematics import Kinematics
+from acquisition.simworld.scene import SampleHolder, make_scene, white_material
+from simulators.camera import SimCamera
+from simulators.clock import SimClock
+from simulators.materials import Material
+from simulators.sensor import SensorModel
+
+
+def simulated_camera(
+    rig: RigConfig,
+    kinematics: Kinematics,
+    true_joints: Callable[[], dict[str, float]],
+    material: Material | None,
+    clock: SimClock,
+    seed: int,
+) -> tuple[SimCamera, SampleHolder | None]:
+    """The rig's simulated camera and, when a material is given, the sample holder it sees.
+
+    ``true_joints()`` gives the simulators' true joint angles (deg) at the moment of exposure.
+    """
+    holder = None
+    if material is not None:
+        holder = SampleHolder(material, white_material(rig))
+        holder.sim_attach(rig, clock)  # the lamp follows the device clock (light drift)
+    sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
+    scene = make_scene(rig, kinematics, true_joints, holder, sensor.superpixel_shape)
+    return SimCamera(sensor, scene, clock, seed=seed), holder

@@ -1,0 +1,65 @@
+"""Simulated servo buses for a rig: the device clock and one in-process Dynamixel simulator per
+``simulated = true`` bus, on a pseudo-terminal the driver opens like a USB adapter."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import ExitStack, contextmanager
+
+from acquisition.config.rig import RigConfig
+from drivers.dynamixel import Axis
+from simulators.clock import SimClock, SteppedClock
+from simulators.dynamixel import SimServoBus
+
+
+def make_clock(rig: RigConfig) -> SimClock:
+    """The device clock of a simulated rig: ``[simulation] clock`` (default ``"stepped"``).
+
+    A :class:`SteppedClock` moves only when a device waits or spends time on purpose, and the
+    servo simulators then charge each packet its time on the wire (``wire_time="clock"``),
+    so a run's rig time is motion + polling + wire time + settle + exposure, independent of the
+    host's load. ``"scaled"`` runs at ``time_scale`` × host time (external clients).
+    """
+    return SteppedClock() if rig.sim_clock == "stepped" else SimClock(rig.time_scale)
+
+
+@contextmanager
+def start_simulated_buses(
+    rig: RigConfig,
+    clock: SimClock,
+    start_ticks: Mapping[str, float],
+    *,
+    sim_faults: Sequence[str] = (),
+    seed: int = 0,
+) -> Iterator[dict[str, SimServoBus]]:
+    """Start a simulator for every ``simulated = true`` bus, each servo at ``start_ticks[axis]``.
+
+    The servos are deaf at any other baud rate than the rig file's (``strict_baud``), like a
+    real bus, so ``gonio scan`` finds them at that rate only.
+    """
+    with ExitStack() as stack:
+        sims: dict[str, SimServoBus] = {}
+        for name, bus_cfg in rig.buses.items():
+            if not bus_cfg.simulated:
+                continue
+            on_bus = [a for a in rig.axes.values() if a.bus == name]
+            sim = SimServoBus(
+                [a.servo_id for a in on_bus], baud=bus_cfg.baud, clock=clock,
+                faults=list(sim_faults), seed=seed, strict_baud=True,
+                wire_time="clock" if isinstance(clock, SteppedClock) else False,
+                positions={a.servo_id: start_ticks[a.name] for a in on_bus},
+            )
+            sim.start()
+            stack.callback(sim.stop)
+            sims[name] = sim
+        yield sims
+
+
+def true_joints(rig: RigConfig, sims: Mapping[str, SimServoBus], axes: Mapping[str, Axis]
+                ) -> dict[str, float]:
+    """The simulators' TRUE joint angles (deg) of every axis (all buses simulated)."""
+    out = {}
+    for name, cfg in rig.axes.items():
+        ticks = sims[cfg.bus].servos[cfg.servo_id].sim_true_position_ticks()
+        out[name] = axes[name].ticks_to_deg(ticks)
+    return out

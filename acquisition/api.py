@@ -14,7 +14,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import acquisition.formats.merl  # noqa: F401  (registers the merl:PATH material)
 from acquisition.config.plan import PlanSpec, load_plan
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.devices.rig import RigDevices, open_devices
@@ -28,8 +27,8 @@ from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
+from acquisition.simworld.materials import parse_material
 from drivers.errors import SessionError
-from simulators.materials import material_from_spec
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 
@@ -114,7 +113,7 @@ def run_session(
 ) -> CaptureResult:
     """Run (or continue) every step of a pre-planned session that is not done yet."""
     rig = folder.rig()
-    material = material_from_spec(folder.info.material) if folder.info.material else None
+    material = parse_material(folder.info.material) if folder.info.material else None
     if rig.simulated and material is None:
         raise SessionError(f"{folder.path}: a simulated rig needs a material (--material)")
     planner = Planner.for_plan(rig, folder.plan())
@@ -159,7 +158,7 @@ def capture(
 def _check_material(rig: RigConfig, material: str | None) -> str | None:
     if rig.simulated:
         material = material or DEFAULT_MATERIAL
-        material_from_spec(material)  # fail before creating anything
+        parse_material(material)  # fail before creating anything
     return material
 
 
@@ -265,7 +264,7 @@ def scripted_session(
                                    calibration=calibration, scripted=True)
     rig = folder.rig()
     spec = folder.info.material
-    mat = material_from_spec(spec) if spec else None
+    mat = parse_material(spec) if spec else None
     planner = Planner.for_plan(rig, folder.plan())
     with open_devices(rig, planner, material=mat, seed=folder.info.seed,
                       sim_faults=sim_faults) as devices:

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from acquisition.lightstage.dome import geodesic_directions
+from acquisition.config.dome import geodesic_directions
 from drivers.dmx import DmxWidget
 from drivers.lights import LightController, pack_fixtures
 from simulators.dmx import SimDmxWidget

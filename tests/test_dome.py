@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from acquisition.lightstage.dome import (
+from acquisition.config.dome import (
     geodesic_directions,
     geodesic_sphere,
     load_dome,

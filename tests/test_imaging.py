@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import acquisition.simworld.materials  # noqa: F401  (registers merl:PATH)
 from acquisition.config.rig import SampleConfig, load_rig
 from acquisition.formats.merl import write_merl
 from acquisition.geometry.halfdiff import merl_bin_angles, vectors_from_halfdiff

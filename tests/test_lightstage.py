@@ -15,10 +15,10 @@ import pytest
 from acquisition import api
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
+from acquisition.config.stage import stage_config
 from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.lightstage import capture as capture_mod
 from acquisition.lightstage.capture import capture_lightstage, resume_lightstage
-from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.devices import LightStageDevices, open_lightstage
 from acquisition.lightstage.reduce import iter_lightstage_samples, led_calibration
 from acquisition.lightstage.sequences import SEQUENCES, capture_steps, sequence_frames

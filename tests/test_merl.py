@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import acquisition.tables.merl_table as merl_table_module
-from acquisition.formats.merl import MERL_FILE_BYTES, MerlMaterial, read_merl, write_merl
+from acquisition.formats.merl import MERL_FILE_BYTES, read_merl, write_merl
+from acquisition.simworld.materials import MerlMaterial
 from acquisition.tables import MerlTable
 from drivers.errors import ConfigError, MaterialError
 from simulators.materials import Material, directions_from_angles, material_from_spec

@@ -11,13 +11,13 @@ import pytest
 
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
+from acquisition.config.stage import stage_config
 from acquisition.lightstage.capture import capture_lightstage
-from acquisition.lightstage.config import stage_config
 from acquisition.lightstage.envmap import latlong_directions, read_exr, write_exr
 from acquisition.lightstage.field import ReflectanceField, load_field, write_field
 from acquisition.lightstage.relight import light_weights, relight
-from acquisition.lightstage.render import render_environment
 from acquisition.session.folder import SessionFolder
+from acquisition.simworld.lightstage import render_environment
 from simulators.materials import material_from_spec
 
 ROOT = Path(__file__).resolve().parent.parent

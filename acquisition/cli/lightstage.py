@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from acquisition.cli.console import operator_output
+from acquisition.cli.operator import terminal_prompt
 from acquisition.cli.progress import step_bar
 from acquisition.lightstage.capture import (
     LightStageResult,
@@ -87,13 +88,14 @@ def run_capture(args: argparse.Namespace) -> int:
     with operator_output(), sigint_stops_motion(), step_bar("capture") as bar:
         result = capture_lightstage(args.rig, args.out, sequences=args.sequence,
                                     material=args.material, seed=args.seed, plan_path=args.plan,
-                                    calibration=args.calibration, progress=bar)
+                                    calibration=args.calibration, progress=bar,
+                                    prompt=terminal_prompt())
     return _finish(result)
 
 
 def run_resume(args: argparse.Namespace) -> int:
     with operator_output(), sigint_stops_motion(), step_bar("resume") as bar:
-        result = resume_lightstage(args.session, progress=bar)
+        result = resume_lightstage(args.session, progress=bar, prompt=terminal_prompt())
     return _finish(result)
 
 

@@ -42,6 +42,23 @@ OperatorPrompt = Callable[[str], None]
 there (raise to abort)."""
 
 
+def require_operator(rig: RigConfig, prompt: OperatorPrompt | None) -> None:
+    """Refuse, before anything is opened, a rig whose targets the operator must swap when there
+    is no one to ask.
+
+    Raises
+    ------
+    ConfigError
+        ``prompt`` is None (no ``prompt=`` given, or the CLI found no terminal on stdin).
+    """
+    if prompt is None:
+        raise ConfigError(
+            f"{rig.path}: this rig needs the operator to swap the sample and the white reference, "
+            "but there is no one to ask (stdin is not a terminal, or no prompt= was given): "
+            "run it in a terminal or pass prompt= to the API"
+        )
+
+
 class RigDevices:
     """An open rig: motion controller, camera, sample holder, and (simulated) clock.
 
@@ -173,6 +190,7 @@ def open_devices(
     with open_servos(rig, planner, clock=clock, sim_faults=sim_faults, seed=seed,
                      health_limits=health_limits) as servos:
         if rig.camera.driver == "gphoto2":
+            require_operator(rig, prompt)
             with GPhoto2Camera(rig.camera.port) as real_camera:
                 yield RigDevices(rig, servos.motion, real_camera, None, clock,
                                  health=servos.health, prompt=prompt)

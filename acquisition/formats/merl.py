@@ -10,14 +10,11 @@ File layout (what the MERL reference reader ``BRDFRead.cpp`` reads), 34,992,012 
   R 1/1500, G 1.15/1500, B 1.66/1500;
 * negative values mark unmeasured bins (the reference prints "Below horizon.").
 
-Importing this module registers the ``merl:PATH`` material spec in
-:data:`simulators.materials.MATERIAL_PARSERS`, so the simulated camera can "capture" a measured
-material.
+The simulated camera's ``merl:PATH`` material lives in :mod:`acquisition.simworld.materials`.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 
@@ -32,8 +29,7 @@ from acquisition.geometry.halfdiff import (
 )
 from acquisition.tables.atomic import atomic_path
 from acquisition.tables.merl_table import MerlTable
-from drivers.errors import ConfigError, MaterialError
-from simulators.materials import MATERIAL_PARSERS, Material
+from drivers.errors import ConfigError
 
 MERL_SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 """BRDF (sr⁻¹) = stored value × scale, per channel R, G, B."""
@@ -122,32 +118,6 @@ class MerlBRDF:
         th, td, pd = halfdiff_rad_from_vectors(wi, wo)
         return self._flat[merl_flat_index_rad(th, td, pd, clamp=True)]
 
-    def as_material(self, spec: str | None = None) -> MerlMaterial:
-        """This BRDF as a :class:`simulators.materials.Material` for the simulated camera."""
-        return MerlMaterial(self, spec or f"merl:{self.path or '<memory>'}")
-
-
-class MerlMaterial(Material):
-    """A MERL BRDF as a simulated material.
-
-    Evaluates like :meth:`MerlBRDF.eval_vectors`, but returns 0 for directions at or below the
-    horizon (the :class:`Material` contract) and for unmeasured (negative) bins.
-    """
-
-    def __init__(self, brdf: MerlBRDF, spec: str) -> None:
-        self.brdf = brdf
-        self.spec = spec
-
-    def eval_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
-        value = np.maximum(self.brdf.eval_vectors(wi, wo), 0.0)
-        above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return np.where(above[..., None], value, 0.0)
-
-    def __repr__(self) -> str:
-        return f"MerlMaterial({self.spec!r})"
-
 
 # ---------------------------------------------------------------------------- file I/O
 def read_merl(path: str | os.PathLike[str]) -> MerlBRDF:
@@ -223,30 +193,3 @@ def write_merl(
     with atomic_path(path, "MERL file") as tmp, open(tmp, "wb") as fh:
         fh.write(np.asarray(header, dtype="<i4").tobytes())
         fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())
-
-
-# ---------------------------------------------------------------------------- material spec
-@functools.lru_cache(maxsize=4)
-def _read_cached(resolved: str, mtime_ns: int, size: int) -> MerlBRDF:
-    return read_merl(resolved)
-
-
-def material_from_merl_spec(text: str) -> MerlMaterial:
-    """Parser for ``merl:PATH`` (``text`` is PATH); raises :class:`MaterialError`."""
-    name = text.strip()
-    if not name:
-        raise MaterialError(
-            "material 'merl:' needs a file path, e.g. merl:/data/merl/alum-bronze.binary"
-        )
-    path = Path(name).expanduser()
-    try:
-        st = path.stat()
-        brdf = _read_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
-    except FileNotFoundError:
-        raise MaterialError(f"material 'merl:{name}': file {path} does not exist") from None
-    except ConfigError as exc:
-        raise MaterialError(f"material 'merl:{name}': {exc}") from None
-    return brdf.as_material(f"merl:{name}")
-
-
-MATERIAL_PARSERS["merl"] = material_from_merl_spec

@@ -18,16 +18,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from acquisition.config.rig import load_rig
-from acquisition.lightstage.config import StageConfig, stage_config
-from acquisition.lightstage.devices import LightStageDevices, OperatorPrompt, open_lightstage, operator_prompt
+from acquisition.config.stage import StageConfig, stage_config
+from acquisition.devices.rig import OperatorPrompt, require_operator
+from acquisition.lightstage.devices import LightStageDevices, open_lightstage
 from acquisition.lightstage.sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
 from acquisition.planning.planner import Planner
 from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import INFO_FILE, SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
+from acquisition.simworld.materials import parse_material
 from drivers.errors import SessionError
-from simulators.materials import material_from_spec
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 META_KEY = "lightstage"
@@ -115,17 +116,17 @@ def capture_lightstage(
 
     ``sequences`` are names of :data:`acquisition.lightstage.sequences.SEQUENCES`; a white
     reference OLAT pass (``white``) and a dark frame (``dark``) come first. On real hardware
-    ``prompt`` asks the operator to swap the sample and the white reference (default: the
-    terminal; refused before anything is created when stdin is not one).
+    ``prompt`` asks the operator to swap the sample and the white reference (refused before
+    anything is created when there is none).
     """
     rig = load_rig(rig_path)
     stage = stage_config(rig)
     capture_steps(stage, sequences)  # unknown sequence names fail before anything is created
     if rig.simulated:
         material = material or DEFAULT_MATERIAL
-        material_from_spec(material)
+        parse_material(material)
     elif rig.camera.driver != "simulated":
-        prompt = operator_prompt(rig, prompt)
+        require_operator(rig, prompt)
     with tempfile.TemporaryDirectory() as tmp:
         if plan_path is None:
             plan_path = Path(tmp) / "plan.toml"
@@ -163,7 +164,7 @@ def resume_lightstage(
     steps = capture_steps(stage, meta["sequences"], white=meta["white"], dark=meta["dark"])
     estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
     spec = folder.info.material
-    material = material_from_spec(spec) if spec else None
+    material = parse_material(spec) if spec else None
     obs = list(observers)
     if progress is not None:
         obs.append(ProgressObserver(progress))

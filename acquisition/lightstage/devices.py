@@ -1,17 +1,9 @@
 """Opening a light stage: DMX widgets and light controller, camera, sample holder, clock.
 
-For a universe whose port is ``"sim"`` a :class:`simulators.dmx.SimDmxWidget` is started
-in-process on a pseudo-terminal and :class:`drivers.dmx.DmxWidget` opens that path exactly as
-it would open a USB widget; :class:`drivers.lights.LightController` drives every universe and
-confirms each light state by timing. The simulated camera renders the LEDs the simulated
-widgets are *outputting* at the moment the exposure starts (``sim_state_at``), with each
-LED's true intensity and colour, so a light state that was not yet on shows in the frame.
-
-Simulated time is event-stepped (:class:`simulators.clock.SteppedClock`): it passes only in the devices' own
-waits (the DMX refresh limit, the lights' settle, the exposure), never while the host computes,
-so a run's rig time is the hardware timeline whatever the host's load. A simulated widget
-stamps each frame with the clock when its thread parses it; :class:`SyncedSimWidget` waits
-for that parse after every write, before anything can advance the clock.
+For ``"sim"`` ports the simulated stage (:mod:`acquisition.simworld.lightstage`) is started:
+widgets on pseudo-terminals opened by :class:`drivers.dmx.DmxWidget` exactly as USB widgets,
+on an event-stepped clock. :class:`drivers.lights.LightController` drives every universe and
+confirms each light state by timing.
 
 Real hardware (``[camera] driver = "gphoto2"`` and a device path for every ``[dmx]`` port):
 one :class:`drivers.dmx.DmxWidget` per universe and a :class:`drivers.gphoto2.GPhoto2Camera`,
@@ -26,58 +18,29 @@ swapped by the operator, through a prompt callback (:data:`OperatorPrompt`).
 from __future__ import annotations
 
 import contextlib
-import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from acquisition.config.rig import RigConfig
-from acquisition.devices.rig import CAMERA_DRIVERS
-from acquisition.lightstage.config import SIM_PORT, StageConfig, stage_config
-from acquisition.lightstage.render import LightImages
-from acquisition.simworld.scene import SampleHolder, white_material
+from acquisition.config.stage import SIM_PORT, StageConfig, stage_config
+from acquisition.devices.rig import CAMERA_DRIVERS, OperatorPrompt, require_operator
+from acquisition.simworld.lightstage import LightImages, open_simulated_stage
+from acquisition.simworld.scene import SampleHolder
 from drivers.camera import Camera, CaptureInfo
 from drivers.dmx import Clock, DmxWidget, MonotonicClock
 from drivers.errors import ConfigError, HardwareError
 from drivers.gphoto2 import GPhoto2Camera
-from drivers.lights import Fixture, Level, LightController, LightState
-from simulators.camera import SimCamera
-from simulators.clock import SimClock, SteppedClock
-from simulators.dmx import SimDmxWidget
-from simulators.materials import Material
-from simulators.sensor import SensorModel
+from drivers.lights import Level, LightController, LightState
 
-OperatorPrompt = Callable[[str], None]
-"""Asks the operator to put a target (``"sample"`` or ``"white"``) under the dome; returns
-once it is there (raise to abort the capture)."""
-
-
-def terminal_prompt(target: str) -> None:
-    """The interactive :data:`OperatorPrompt`: ask on the terminal and wait for Enter."""
-    input(f"Put the {target} under the dome and press Enter… ")
-
-
-def operator_prompt(rig: RigConfig, prompt: OperatorPrompt | None) -> OperatorPrompt:
-    """``prompt``, else :func:`terminal_prompt` when stdin is a terminal.
-
-    Raises
-    ------
-    ConfigError
-        No prompt was given and stdin is not a terminal (CI, a pipe, a service).
-    """
-    if prompt is not None:
-        return prompt
-    stdin = sys.stdin
-    if stdin is None or not stdin.isatty():
-        raise ConfigError(
-            f"{rig.path}: a real light stage needs the operator to swap the sample and the white "
-            "reference, but stdin is not a terminal; run it in a terminal or pass prompt= to "
-            "capture_lightstage/resume_lightstage"
-        )
-    return terminal_prompt
+if TYPE_CHECKING:
+    from simulators.clock import SimClock
+    from simulators.dmx import SimDmxWidget
+    from simulators.materials import Material
 
 
 def exposure_interval(info: CaptureInfo, called_s: float, returned_s: float, *,
@@ -91,47 +54,6 @@ def exposure_interval(info: CaptureInfo, called_s: float, returned_s: float, *,
     """
     start = info.timestamp - wall_minus_host_s
     return min(called_s, start), max(returned_s, start + info.exposure_s)
-
-
-class SyncedSimWidget:
-    """A :class:`DmxWidget` on a simulated widget: each write returns once the widget parsed it.
-
-    Implements :class:`drivers.lights.UniverseOutput`.
-    """
-
-    def __init__(self, widget: DmxWidget, sim: SimDmxWidget) -> None:
-        self.widget = widget
-        self.sim = sim
-
-    @property
-    def port(self) -> str:
-        return self.widget.port
-
-    def send_universe(self, levels: bytes) -> float:
-        t = self.widget.send_universe(levels)
-        self.sim.sim_wait_idle()
-        return t
-
-    def ready_at(self, sent_at_s: float, n_channels: int | None = None) -> float:
-        return self.widget.ready_at(sent_at_s, n_channels)
-
-    def close(self) -> None:
-        self.widget.close()
-
-
-def fixture_emission(fixture: Fixture, universe: bytes) -> np.ndarray:
-    """RGB emission (3,) of ``fixture`` relative to full white, from the universe it shows."""
-
-    def level(role: str) -> float:
-        i = fixture.start_channel + fixture.channels[role] - 1
-        return universe[i] / 255.0 if i < len(universe) else 0.0
-
-    intensity = level("intensity") if "intensity" in fixture.channels else 1.0
-    if fixture.has_colour:
-        return intensity * np.array([level("r"), level("g"), level("b")])
-    if "w" in fixture.channels and "intensity" not in fixture.channels:
-        intensity = level("w")
-    return np.full(3, intensity)
 
 
 class LightStageDevices:
@@ -153,10 +75,15 @@ class LightStageDevices:
     """
 
     def __init__(self, rig: RigConfig, stage: StageConfig, lights: LightController,
-                 camera: SimCamera | Camera, holder: SampleHolder | None, clock: SimClock | None,
+                 camera: Camera, holder: SampleHolder | None, clock: SimClock | None,
                  sims: Mapping[int, SimDmxWidget], images: LightImages | None = None, *,
-                 prompt: OperatorPrompt | None = None, timer: Clock | None = None) -> None:
+                 prompt: OperatorPrompt | None = None, timer: Clock | None = None,
+                 seeded_camera: bool = False,
+                 true_emission: Callable[[float], np.ndarray] | None = None) -> None:
         self.rig = rig
+        self.seeded_camera = seeded_camera
+        self.true_emission = true_emission
+        """``true_emission(t)``: (N, 3) RGB emission of every LED at device time t (simulated)."""
         self.prompt = prompt
         self.timer: Clock = timer if timer is not None else MonotonicClock()
         self.images = images
@@ -174,13 +101,6 @@ class LightStageDevices:
         state: dict[str, Level] = {n: float(v) for n, v in zip(names, levels, strict=True) if v > 0}
         return self.lights.set_state(state, hold_s=hold_s)
 
-    def true_emission(self, t: float) -> np.ndarray:
-        """(N, 3) RGB emission of every LED at time ``t`` (simulated widgets' output × the LEDs'
-        true intensity and colour)."""
-        universes = {u: sim.sim_state_at(t) for u, sim in self.sims.items()}
-        e = np.array([fixture_emission(f, universes.get(f.universe, b""))
-                      for f in self.stage.fixtures])
-        return e * self.stage.led_gain[:, None] * self.stage.led_colour
 
     # -- CaptureDevices ------------------------------------------------------------------------
     def move_to(self, joints: dict[str, float]) -> dict[str, float]:
@@ -193,8 +113,8 @@ class LightStageDevices:
     def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
         """Expose one frame; raises HardwareError unless the whole exposure lay under the
         commanded, settled light state."""
-        if isinstance(self.camera, SimCamera):
-            info = self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)
+        if self.seeded_camera:
+            info = self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)  # type: ignore[call-arg]
             start, end = info.timestamp, info.timestamp + info.exposure_s
         else:
             called = self.timer.now()
@@ -215,7 +135,12 @@ class LightStageDevices:
             self.holder.present(target)
             return
         self.lights.all_off(wait=False)
-        (self.prompt or terminal_prompt)(target)
+        if self.prompt is None:
+            raise ConfigError(
+                f"{self.rig.path}: the operator must put the {target} under the dome, but no "
+                "operator prompt was given: run gonio in a terminal, or pass prompt= to the API"
+            )
+        self.prompt(target)
 
     def stop_motion(self) -> None:
         """Nothing moves; switch every light off (best effort)."""
@@ -245,6 +170,7 @@ def open_lightstage(rig: RigConfig, *, material: Material | None, seed: int = 0,
         raise ConfigError(f"{rig.path}: [camera] driver '{rig.camera.driver}' is unknown: use "
                           f"one of {', '.join(CAMERA_DRIVERS)}")
     if rig.camera.driver != "simulated":
+        require_operator(rig, prompt)
         with _open_hardware(rig, stage, prompt) as devices:
             yield devices
         return
@@ -253,34 +179,10 @@ def open_lightstage(rig: RigConfig, *, material: Material | None, seed: int = 0,
                           f"(port \"{SIM_PORT}\") to know which LEDs are on")
     if material is None:
         raise ConfigError(f"{rig.path}: a simulated light stage needs a material (--material)")
-    clock = SteppedClock()
-    with ExitStack() as stack:
-        sims: dict[int, SimDmxWidget] = {}
-        widgets: dict[int, SyncedSimWidget] = {}
-        for universe in sorted(stage.ports):
-            sim = SimDmxWidget(clock=clock, refresh_rate_hz=stage.refresh_rate_hz,
-                               serial_number=10_000_000 + universe)
-            path = sim.start()
-            stack.callback(sim.stop)
-            widget = DmxWidget(path, settle_s=stage.settle_s, clock=clock)
-            stack.callback(widget.close)
-            sims[universe] = sim
-            widgets[universe] = SyncedSimWidget(widget, sim)
-        lights = LightController(widgets, stage.fixtures, duty_limit=stage.duty, clock=clock)
-        stack.callback(lights.close)  # runs before the widgets close: lights off first
-        holder = SampleHolder(material, white_material(rig))
-        sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
-        images = LightImages(rig, stage.directions, stage.camera_dir, sensor.superpixel_shape)
-        devices: LightStageDevices
-
-        def scene() -> np.ndarray:
-            weights = devices.true_emission(clock.now())
-            target = None if holder.current == "sample" else "flat"
-            return images.lit(weights, holder.material, target)
-
-        camera = SimCamera(sensor, scene, clock, seed=seed)
-        devices = LightStageDevices(rig, stage, lights, camera, holder, clock, sims, images)
-        yield devices
+    with open_simulated_stage(rig, stage, material, seed) as sim:
+        yield LightStageDevices(rig, stage, sim.lights, sim.camera, sim.holder, sim.clock,
+                                sim.sims, sim.images, seeded_camera=True,
+                                true_emission=sim.true_emission)
 
 
 @contextmanager
@@ -293,7 +195,6 @@ def _open_hardware(rig: RigConfig, stage: StageConfig,
             f"{rig.path}: [dmx] ports: universe {sim[0]} is \"{SIM_PORT}\" but the camera is "
             f"real ({rig.camera.driver}); give it the widget's device path (e.g. /dev/ttyUSB0)"
         )
-    ask = operator_prompt(rig, prompt)
     clock = MonotonicClock()
     with ExitStack() as stack:
         # the camera first, so a missing camera fails before a light is touched; on exit the
@@ -306,5 +207,5 @@ def _open_hardware(rig: RigConfig, stage: StageConfig,
             widgets[universe] = widget
         lights = LightController(widgets, stage.fixtures, duty_limit=stage.duty, clock=clock)
         stack.callback(lights.close)
-        yield LightStageDevices(rig, stage, lights, camera, None, None, {}, prompt=ask,
+        yield LightStageDevices(rig, stage, lights, camera, None, None, {}, prompt=prompt,
                                 timer=clock)

@@ -84,7 +84,7 @@ def write_field(session_dir: str | Path, out_dir: str | Path) -> list[Path]:
     cal = led_calibration(folder.path)
     records = _done(folder)
     dark = dark_rate(folder, records)
-    from acquisition.lightstage.config import stage_config
+    from acquisition.config.stage import stage_config
 
     stage = stage_config(rig)
     relative = cal.relative

@@ -5,7 +5,7 @@ light each dome light stands for:
 
     L(p) = Σ_k R_k(p) · E_k,     E_k = Ω_k · mean of the environment over light k's cell
 
-with Ω_k the light's solid angle (its hemisphere Voronoi cell, :mod:`acquisition.lightstage.dome`) and
+with Ω_k the light's solid angle (its hemisphere Voronoi cell, :mod:`acquisition.config.dome`) and
 the mean taken over the environment pixels nearest to light k (solid-angle weighted). A cell
 no environment pixel falls in (a coarse map) takes the map's value at the light's direction.
 Light from below the horizon is outside the dome's reach and ignored.

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from acquisition.lightstage.config import StageConfig
+from acquisition.config.stage import StageConfig
 from acquisition.session.steps import DARK, POSE, REFERENCE, Checkpoint, Step
 from drivers.dmx import (
     DEFAULT_BREAK_UNITS,

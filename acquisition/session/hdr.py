@@ -3,10 +3,10 @@ their frames."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 from acquisition.config.rig import RigConfig
+from acquisition.config.sensor import nominal_noise_model
 from calibration.linearize import NoiseModel
 from drivers.errors import (
     SessionError,
@@ -52,9 +52,4 @@ def camera_noise_model(rig: RigConfig, iso: float, bundle: Any = None) -> NoiseM
             f"HDR on rig '{rig.name}' needs a noise model at ISO {iso:g}: run "
             "`gonio calibrate noise` and give the bundle with --calibration"
         )
-    from simulators.sensor import SensorModel
-
-    sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
-    gain = sensor.gain_at(iso)
-    read = math.sqrt((sensor.read_noise_e / gain) ** 2 + sensor.black_noise_dn**2 + 1 / 12)
-    return NoiseModel(gain, read, iso)
+    return nominal_noise_model(rig, iso)

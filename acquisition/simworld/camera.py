@@ -6,12 +6,12 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from acquisition.config.rig import RigConfig
+from acquisition.config.sensor import simulated_sensor
 from acquisition.geometry.kinematics import Kinematics
 from acquisition.simworld.scene import SampleHolder, make_scene, white_material
 from simulators.camera import SimCamera
 from simulators.clock import SimClock
 from simulators.materials import Material
-from simulators.sensor import SensorModel
 
 
 def simulated_camera(
@@ -30,6 +30,6 @@ def simulated_camera(
     if material is not None:
         holder = SampleHolder(material, white_material(rig))
         holder.sim_attach(rig, clock)  # the lamp follows the device clock (light drift)
-    sensor = SensorModel.from_dict(rig.camera.sensor, where=f"{rig.path} [camera.sensor]")
+    sensor = simulated_sensor(rig)
     scene = make_scene(rig, kinematics, true_joints, holder, sensor.superpixel_shape)
     return SimCamera(sensor, scene, clock, seed=seed), holder

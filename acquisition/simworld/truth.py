@@ -14,8 +14,9 @@ import numpy as np
 from acquisition.reduction.point import binning_pose
 from acquisition.session.engine import POSE
 from acquisition.session.folder import SessionFolder
+from acquisition.simworld.materials import parse_material
 from acquisition.tables import IsotropicTable
-from simulators.materials import Material, material_from_spec
+from simulators.materials import Material
 
 
 def truth_table(session_dir: str | Path, material: Material | None = None) -> IsotropicTable:
@@ -24,7 +25,7 @@ def truth_table(session_dir: str | Path, material: Material | None = None) -> Is
     if material is None:
         if not folder.info.material:
             raise ValueError(f"{folder.path} records no simulated material")
-        material = material_from_spec(folder.info.material)
+        material = parse_material(folder.info.material)
     plan, kin = folder.plan(), folder.rig().kinematics()
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance={"truth": material.spec})

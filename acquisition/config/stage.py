@@ -2,7 +2,7 @@
 
 The lights' directions come from the rig file's ``[light_stage]`` table (what the
 ``light-stage`` kinematics uses); their solid angles are the dome's hemisphere Voronoi cells
-(:func:`acquisition.lightstage.dome.solid_angles_sr`). The DMX wiring is read from an optional ``[dmx]``
+(:func:`acquisition.config.dome.solid_angles_sr`). The DMX wiring is read from an optional ``[dmx]``
 table of the rig file's data::
 
     [dmx]
@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from acquisition.config.dome import solid_angles_sr
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.kinematics.lightstage import LightStage
-from acquisition.lightstage.dome import solid_angles_sr
 from drivers.errors import ConfigError
 from drivers.lights import DutyCycleLimit, DutyPolicy, Fixture, pack_fixtures
 

@@ -18,10 +18,13 @@ start-code slot + one slot per channel: with the widget's default break (9 × 10
 ≈ 44 frames/s. The widget outputs frames at its own rate (default 40/s → one every 25 ms);
 a universe handed to it while a frame is on the wire waits for the next one, and a universe
 replaced before it went out is never output. :meth:`DmxWidget.send_universe` therefore spaces
-sends by at least one output period, ``max(frame time, 1 / output rate)``, so every state
-sent is output at least once, and :meth:`DmxWidget.ready_at` bounds when it is surely on:
-one period (the frame in progress) + one frame time (the frame carrying it) + a USB margin +
-``settle_s`` (the fixtures' own response).
+sends by at least one output period, ``max(frame time, 1 / output rate)`` (for the larger of
+the universe on the wire and the new one), so every state sent is output at least once, and
+:meth:`DmxWidget.ready_at` bounds when it is surely on: that period (the frame in progress) +
+one frame time (the frame carrying it) + a USB margin + ``settle_s`` (the fixtures' own
+response). Break, MAB and output rate are the widget's own, read on open (label 3): a widget
+another program configured (Set Widget Parameters, label 4; the widget keeps it through power
+cycles) is paced by what it really does.
 
 A DMX USB Pro cannot report what it outputs, so "on" is confirmed by that timing, not by a
 readback. Several universes are driven by one widget each (one port per universe); the Pro
@@ -321,6 +324,9 @@ class DmxWidget:
         )
         self._last_sent_s: float | None = None
         self._last_channels = MAX_CHANNELS
+        # size of the universe the widget was outputting when the last one was sent (unknown,
+        # so a full universe, before this driver's first send: another client's, say)
+        self._prior_channels = MAX_CHANNELS
         try:
             self._serial = serial.serial_for_url(
                 port,
@@ -391,21 +397,20 @@ class DmxWidget:
     def ready_at(self, sent_at_s: float, n_channels: int | None = None) -> float:
         """Clock time by which a universe sent at ``sent_at_s`` is surely on and settled (s).
 
-        One output period (the frame in progress) + one frame time (the frame carrying the
-        new levels) + :data:`USB_MARGIN_S` + :attr:`settle_s`.
+        One output period of the frame in progress + one frame time (the frame carrying the
+        new levels) + :data:`USB_MARGIN_S` + :attr:`settle_s`. The frame in progress is sized
+        by the larger of this universe and the one before it when ``sent_at_s`` is the last
+        send, else by a full universe (the worst case).
         """
+        n = self._last_channels if n_channels is None else n_channels
+        prior = self._prior_channels if sent_at_s == self._last_sent_s else MAX_CHANNELS
         return (
             sent_at_s
-            + self.frame_period_s(n_channels)
-            + self.frame_time_s(n_channels)
+            + self.frame_period_s(max(n, prior))
+            + self.frame_time_s(n)
             + USB_MARGIN_S
             + self.settle_s
         )
-
-    @property
-    def last_sent_s(self) -> float | None:
-        """Clock time of the last universe handed to the widget, or None."""
-        return self._last_sent_s
 
     # -- commands ------------------------------------------------------------------------------
 
@@ -426,12 +431,13 @@ class DmxWidget:
         frame = encode_dmx_packet(levels)
         n = len(frame) - 6
         if self._last_sent_s is not None:
-            wait = self._last_sent_s + self.frame_period_s(self._last_channels) - self._clock.now()
-            self._clock.sleep(wait)
+            # the previous universe's frame starts within the period of the frame it waited for
+            period = self.frame_period_s(max(self._last_channels, self._prior_channels))
+            self._clock.sleep(self._last_sent_s + period - self._clock.now())
         with self._io("sending a DMX universe"):
             self._ser().write(frame)
         self._last_sent_s = self._clock.now()
-        self._last_channels = n
+        self._prior_channels, self._last_channels = self._last_channels, n
         return self._last_sent_s
 
     def get_parameters(self, user_config_size: int = 0) -> WidgetParameters:
@@ -447,7 +453,12 @@ class DmxWidget:
         return self._params
 
     def get_serial_number(self) -> str:
-        """The widget's serial number as printed on its case (label 10)."""
+        """The widget's serial number as printed on its case (label 10).
+
+        The widget stops its DMX output on this request (any request but labels 3 and 6 turns
+        its port to input; fixtures keep their last levels); the next :meth:`send_universe`
+        restarts it.
+        """
         data = self._request(Label.GET_SERIAL_NUMBER, b"", "Get Widget Serial Number")
         try:
             return decode_serial_number(data)

@@ -1,16 +1,21 @@
-"""simulators.dng: DNG files that LibRaw reads bit-exactly and OpenImageIO reads metadata from."""
+"""simulators.dng: DNG files that LibRaw reads bit-exactly and OpenImageIO, exiftool and LibRaw's
+tools read capture metadata from (an EXIF IFD)."""
 
 from __future__ import annotations
 
 import datetime as dt
+import shutil
+import subprocess
 
 import numpy as np
 import OpenImageIO as oiio
 import pytest
 import rawpy
+import tifffile
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from calibration.raw import load_raw
 from simulators.dng import CFA_PATTERNS, write_dng
 
 BLACK = np.array([[500, 501], [502, 503]])
@@ -66,10 +71,80 @@ def test_openimageio_reads_capture_metadata(tmp_path):
     inp.close()
     assert spec.getattribute("ExposureTime") == pytest.approx(1 / 250, rel=1e-6)
     assert spec.getattribute("FNumber") == pytest.approx(5.6, rel=1e-6)
-    assert spec.getattribute("Exif:ISOSpeedRatings") == 400
+    # from the EXIF IFD OpenImageIO reads ISO as a one-element uint16 array, as for camera files
+    assert spec.get_int_attribute("Exif:ISOSpeedRatings") == 400
     assert spec.getattribute("Make") == "Acme"
     assert spec.getattribute("Model") == "Cam 1"
     assert spec.getattribute("DateTime") == "2024:05:06 07:08:09"
+    assert spec.getattribute("Exif:DateTimeOriginal") == "2024:05:06 07:08:09"
+    frame = load_raw(path)  # gonio's own loader
+    assert (frame.exposure_s, frame.iso, frame.f_number) == pytest.approx((1 / 250, 400, 5.6))
+
+
+CAPTURE = {"exposure_s": 1 / 250, "iso": 400, "f_number": 5.6, "datetime": "2024:05:06 07:08:09"}
+
+
+def test_capture_metadata_live_in_the_exif_ifd(tmp_path):
+    path = write_dng(tmp_path / "f.dng", _mosaic(), **CAPTURE)
+    with tifffile.TiffFile(path) as tif:
+        ifd0 = tif.pages.first.tags
+        exif = ifd0[34665].value  # ExifIFD pointer, decoded by tifffile
+    assert not {33434, 33437, 34855} & set(ifd0.keys())  # nothing left in IFD0
+    assert exif["ExposureTime"] == (1, 250) and exif["FNumber"] == (28, 5)
+    assert exif["ISOSpeedRatings"] == 400
+    assert exif["ExifVersion"] == "0230" and exif["DateTimeOriginal"] == CAPTURE["datetime"]
+
+
+def test_libraw_reads_exif_capture_metadata(tmp_path):
+    mosaic = _mosaic()
+    path = write_dng(tmp_path / "f.dng", mosaic, **CAPTURE)
+    with rawpy.imread(str(path)) as raw:
+        other = raw.other
+        assert np.array_equal(raw.raw_image_visible, mosaic)  # still bit-exact
+    assert other.iso_speed == 400  # LibRaw ignores ISO in IFD0 of a DNG
+    assert other.shutter_speed == pytest.approx(1 / 250, rel=1e-6)
+    assert other.aperture == pytest.approx(5.6, rel=1e-6)
+    assert other.timestamp == dt.datetime(2024, 5, 6, 7, 8, 9)
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        pytest.skip(f"{name} is not installed (Debian: apt-get install libimage-exiftool-perl "
+                    "libraw-bin; .ci/run does it when run as root)")
+    return path
+
+
+def test_raw_identify_reads_iso(tmp_path):
+    path = write_dng(tmp_path / "f.dng", _mosaic(), **CAPTURE)
+    out = subprocess.run([_tool("raw-identify"), "-v", str(path)], capture_output=True,
+                         text=True, check=True).stdout
+    lines = {k.strip(): v.strip() for k, _, v in (ln.partition(":") for ln in out.splitlines())}
+    assert lines["ISO speed"] == "400"
+    assert lines["Shutter"] == "1/250.0" and lines["Aperture"] == "f/5.6"
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        CAPTURE,
+        {},  # no capture settings: the EXIF IFD still holds version and time
+        {**CAPTURE, "black_level": 512, "white_level": 16383, "active_area": (4, 0, 32, 48),
+         "masked_areas": [(0, 0, 4, 48)], "cfa_pattern": "GBRG"},
+    ],
+    ids=["capture", "bare", "masked"],
+)
+def test_exiftool_validates_without_warnings(tmp_path, kwargs):
+    path = write_dng(tmp_path / "f.dng", _mosaic(), **kwargs)
+    out = subprocess.run([_tool("exiftool"), "-validate", "-warning", "-error", "-a", "-G1", "-s",
+                          str(path)], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["[ExifTool]", "Validate", ":", "OK"], out
+    if kwargs.get("iso"):
+        tags = subprocess.run([_tool("exiftool"), "-a", "-G1", "-s", "-ExposureTime", "-FNumber",
+                               "-ISO", str(path)], capture_output=True, text=True, check=True).stdout
+        assert tags.split("\n")[:3] == ["[ExifIFD]       ExposureTime                    : 1/250",
+                                        "[ExifIFD]       FNumber                         : 5.6",
+                                        "[ExifIFD]       ISO                             : 400"]
 
 
 @settings(max_examples=25, deadline=None)
@@ -127,6 +202,9 @@ def test_fsync_writes_complete_file(tmp_path):
         ({"black_level": [1, 2, 3]}, "2×2"),
         ({"white_level": 70000}, "white_level"),
         ({"exposure_s": 0}, "exposure_s"),
+        ({"f_number": 0}, "f_number"),
+        ({"iso": 70000}, "iso"),
+        ({"datetime": "2024-05-06"}, "datetime"),
         ({"active_area": (0, 0, 33, 48)}, "active_area"),
         ({"active_area": (0, 0, 21, 48)}, "minimum"),
         ({"masked_areas": [(0, 0, 2, 49)]}, "masked area"),

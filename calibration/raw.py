@@ -359,7 +359,10 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
 
 
 def _positive(value: Any) -> float | None:
-    """A positive finite number, shortest-printed at float32 precision (OpenImageIO's)."""
+    """A positive finite number, shortest-printed at float32 precision (OpenImageIO's); a
+    one-element tuple (how OpenImageIO returns EXIF arrays such as ISOSpeedRatings) is unwrapped."""
+    if isinstance(value, tuple) and len(value) == 1:
+        value = value[0]
     try:
         number = float(value)
     except (TypeError, ValueError):

@@ -401,11 +401,6 @@ class LightController:
         """Universe → levels last sent to its widget (the commanded readback)."""
         return dict(self._sent)
 
-    def is_ready(self, at_s: float | None = None) -> bool:
-        """Whether the current state is on and settled at ``at_s`` (default: now)."""
-        t = self._clock.now() if at_s is None else at_s
-        return self._state is not None and t >= self._state.ready_at_s
-
     def covers(self, start_s: float, end_s: float) -> bool:
         """Whether an exposure over [start_s, end_s] lay entirely under the current state.
 

@@ -15,7 +15,7 @@ import tifffile
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calibration.raw import load_raw
+from calibration.raw import _capture_metadata, load_raw
 from simulators.dng import CFA_PATTERNS, write_dng
 
 BLACK = np.array([[500, 501], [502, 503]])
@@ -79,6 +79,8 @@ def test_openimageio_reads_capture_metadata(tmp_path):
     assert spec.getattribute("Exif:DateTimeOriginal") == "2024:05:06 07:08:09"
     frame = load_raw(path)  # gonio's own loader
     assert (frame.exposure_s, frame.iso, frame.f_number) == pytest.approx((1 / 250, 400, 5.6))
+    # the OpenImageIO side alone reads the ISO too (not only LibRaw's fallback)
+    assert _capture_metadata(path)["iso"] == 400
 
 
 CAPTURE = {"exposure_s": 1 / 250, "iso": 400, "f_number": 5.6, "datetime": "2024:05:06 07:08:09"}

@@ -12,7 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from drivers.errors import GonioError
+from acquisition import api
 
 COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.capture",
@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except GonioError as exc:
+    except api.GonioError as exc:
         print(f"gonio: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:

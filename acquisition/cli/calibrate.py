@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from acquisition.calibrate.radiometric import KINDS, calibrate
+from acquisition import api
 from acquisition.cli.progress import step_bar
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="capture dark/flat/noise/white calibration into a bundle")
-    p.add_argument("kind", choices=KINDS, help="what to calibrate")
+    p.add_argument("kind", choices=api.KINDS, help="what to calibrate")
     p.add_argument("--rig", required=True, help="rig file (TOML)")
     p.add_argument("--out", required=True, help="calibration bundle folder (created or updated)")
     p.add_argument("--frames", type=int, help="frames per measurement (dark 8, flat 16, white 4)")
@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     with step_bar(f"calibrate {args.kind}", unit="frame") as bar:
-        result = calibrate(args.kind, args.rig, args.out, frames=args.frames,
+        result = api.calibrate(args.kind, args.rig, args.out, frames=args.frames,
                            exposure_s=args.exposure, iso=args.iso, seed=args.seed,
                            progress=lambda d, t: bar(d, t))
     details = ", ".join(f"{k} {_fmt(v)}" for k, v in result.summary.items())

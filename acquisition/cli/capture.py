@@ -9,8 +9,8 @@ from tqdm import tqdm
 
 from acquisition import api
 from acquisition.cli.console import operator_output
+from acquisition.cli.operator import terminal_prompt
 from acquisition.cli.progress import StepBar, step_bar
-from acquisition.session.interrupts import sigint_stops_motion
 
 
 def add_sim_fault_option(p: argparse.ArgumentParser) -> None:
@@ -77,18 +77,19 @@ def eta_from_time_model(bar: StepBar, announce: bool = False) -> api.OnOpen:
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    with operator_output(), sigint_stops_motion(), step_bar("capture") as bar:
+    with operator_output(), api.sigint_stops_motion(), step_bar("capture") as bar:
         result = api.capture(args.rig, args.plan, args.out, material=args.material,
                              seed=args.seed, sim_faults=args.sim_fault, progress=bar,
                              calibration=args.calibration,
-                             on_open=eta_from_time_model(bar, announce=True))
+                             on_open=eta_from_time_model(bar, announce=True),
+                             prompt=terminal_prompt())
     return _finish(result)
 
 
 def run_resume(args: argparse.Namespace) -> int:
-    with operator_output(), sigint_stops_motion(), step_bar("resume") as bar:
+    with operator_output(), api.sigint_stops_motion(), step_bar("resume") as bar:
         result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar,
-                            on_open=eta_from_time_model(bar))
+                            on_open=eta_from_time_model(bar), prompt=terminal_prompt())
     return _finish(result)
 
 

@@ -15,10 +15,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from acquisition.devices import console as api
-from acquisition.session.interrupts import sigint_stops_motion
-from drivers.dynamixel import COMMON_BAUD_RATES
-from drivers.errors import ConfigError
+from acquisition import api
 
 LOGGERS = ("acquisition.devices",)
 """Loggers whose records the CLI shows on stderr (health-guard pauses)."""
@@ -81,7 +78,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scan", help="find servos on the rig's ports (or --port) over baud rates")
     _common(p, rig_required=False)
     p.add_argument("--port", help="scan this port instead of the rig's buses")
-    p.add_argument("--bauds", type=int, nargs="+", default=list(COMMON_BAUD_RATES),
+    p.add_argument("--bauds", type=int, nargs="+", default=None,
                    metavar="BAUD", help="baud rates to try (default: the common X-series rates)")
     p.add_argument("--ids", type=_ids, default=None,
                    help="IDs to look for, e.g. 1-8 (default: all, by broadcast ping)")
@@ -123,7 +120,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @contextmanager
 def _console(args: argparse.Namespace) -> Iterator[api.Console]:
-    with operator_output(), sigint_stops_motion(), api.open_console(
+    with operator_output(), api.sigint_stops_motion(), api.open_console(
             args.rig, sim_faults=args.sim_fault, seed=args.seed) as con:
         yield con
 
@@ -141,14 +138,15 @@ def run_status(args: argparse.Namespace) -> int:
 
 def run_scan(args: argparse.Namespace) -> int:
     ids = args.ids if args.ids is not None else api.ALL_IDS
-    with operator_output(), sigint_stops_motion():
+    bauds = args.bauds or api.COMMON_BAUD_RATES
+    with operator_output(), api.sigint_stops_motion():
         if args.port:
-            results = [api.scan_port(args.port, bauds=args.bauds, ids=ids)]
+            results = [api.scan_port(args.port, bauds=bauds, ids=ids)]
         elif args.rig:
-            results = api.scan_rig(args.rig, bauds=args.bauds, ids=ids,
+            results = api.scan_rig(args.rig, bauds=bauds, ids=ids,
                                    sim_faults=args.sim_fault, seed=args.seed)
         else:
-            raise ConfigError("scan needs --rig RIG (scan its buses) or --port PORT")
+            raise api.ConfigError("scan needs --rig RIG (scan its buses) or --port PORT")
     print(api.format_scan(results))
     return 0 if any(r.found for r in results) else 1
 

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from acquisition.api import DEFAULT_MATERIAL
+from acquisition import api
 from acquisition.cli.progress import step_bar
-from acquisition.demo import run_demo
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="capture, reduce and plot on the simulated rig")
-    p.add_argument("--material", default=DEFAULT_MATERIAL, help="simulated material spec")
+    p.add_argument("--material", default=api.DEFAULT_MATERIAL, help="simulated material spec")
     p.add_argument("--out", default="demo-output", help="folder for the demo session")
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=run)
@@ -19,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     with step_bar("demo capture") as bar:
-        r = run_demo(args.out, material=args.material, seed=args.seed, progress=bar)
+        r = api.run_demo(args.out, material=args.material, seed=args.seed, progress=bar)
     rig = (f", {r.rig_minutes:.1f} min of simulated rig time "
            f"(planner's estimate {r.estimated_minutes:.1f} min)" if r.rig_minutes else "")
     print(f"material        {args.material}")

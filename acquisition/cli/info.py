@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acquisition.formats.export import table_info
-from acquisition.session.status import session_status
+from acquisition import api
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if path.is_dir():
-        lines = session_status(path, drift=not args.no_drift).lines()
+        lines = api.session_status(path, drift=not args.no_drift).lines()
     else:
-        lines = table_info(path).lines()
+        lines = api.table_info(path).lines()
     print("\n".join(lines))
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from calibration.raw import format_inspection, inspect_raw
+from acquisition import api
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,6 +16,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = inspect_raw(args.file)
-    print(json.dumps(info) if args.json else format_inspection(info))
+    info = api.inspect_raw(args.file)
+    print(json.dumps(info) if args.json else api.format_inspection(info))
     return 0

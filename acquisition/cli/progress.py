@@ -16,7 +16,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from acquisition.session.journal import StepRecord
+from acquisition import api
 
 DISABLE: bool | None = None
 """tqdm's ``disable``: None hides the bars when stderr is not a terminal (tests may force)."""
@@ -98,7 +98,7 @@ class StepBar:
         self.bar.bar_format = ETA_FORMAT
         self.bar.set_postfix_str(format_eta(self.eta.eta_s()), refresh=False)
 
-    def __call__(self, done: int, total: int, record: StepRecord | None = None) -> None:
+    def __call__(self, done: int, total: int, record: api.StepRecord | None = None) -> None:
         bar = self.bar
         if self.eta is not None and record is not None:
             self.eta.step_done(record.step)

@@ -8,8 +8,9 @@ open it like a USB adapter.
 from __future__ import annotations
 
 import argparse
+import sys
 
-from drivers.errors import ConfigError
+from acquisition import api
 
 
 def _ids(text: str) -> list[int]:
@@ -43,14 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_servos(args: argparse.Namespace) -> int:
-    from simulators.dynamixel import serve_servos_forever
-
-    if args.time_scale <= 0:
-        raise ConfigError(f"--time-scale must be > 0, got {args.time_scale}")
-    return serve_servos_forever(args.ids, args.baud, args.time_scale, args.fault, args.seed)
+    return api.serve_servos(args.ids, args.baud, args.time_scale, args.fault, args.seed)
 
 
 def run_dmx(args: argparse.Namespace) -> int:
-    from simulators.dmx import serve_dmx_forever
-
-    return serve_dmx_forever()
+    return api.serve_dmx(out=sys.stdout, err=sys.stderr)

@@ -95,22 +95,41 @@ class SessionFolder:
                     "give the folder `gonio capture --out` wrote"
                 )
         self.info = SessionInfo(**json.loads((self.path / INFO_FILE).read_text()))
+        self._rig: RigConfig | None = None
+        self._plan: PlanSpec | None = None
+        self._planner: Planner | None = None
 
     @property
     def frames_dir(self) -> Path:
         return self.path / FRAMES_DIR
 
     def rig(self) -> RigConfig:
-        return load_rig(self.path / RIG_FILE)
+        """The session's rig, loaded once per folder object (its copy, unless the folder was
+        just created from already loaded files)."""
+        if self._rig is None:
+            self._rig = load_rig(self.path / RIG_FILE)
+        return self._rig
 
     def plan(self) -> PlanSpec:
-        return load_plan(self.path / PLAN_FILE)
+        """The session's plan, loaded once per folder object."""
+        if self._plan is None:
+            self._plan = load_plan(self.path / PLAN_FILE)
+        return self._plan
 
     def journal(self, *, readonly: bool = False) -> Journal:
         return Journal(self.path / JOURNAL_FILE, readonly=readonly)
 
     def planner(self) -> Planner:
-        return Planner.for_plan(self.rig(), self.plan())
+        """The planner for the session's rig and plan, built once per folder object."""
+        if self._planner is None:
+            self._planner = Planner.for_plan(self.rig(), self.plan())
+        return self._planner
+
+    def adopt(self, rig: RigConfig, plan: PlanSpec, planner: Planner | None = None) -> SessionFolder:
+        """Use already loaded rig and plan objects (the files the session copied) and their
+        planner, so a run loads and plans once; returns the folder."""
+        self._rig, self._plan, self._planner = rig, plan, planner
+        return self
 
     @property
     def calibration(self) -> Path | None:
@@ -157,39 +176,42 @@ def copy_calibration(source: str | Path, out: Path) -> str:
 
 def create_session(
     out: str | Path,
-    rig_path: str | Path,
-    plan_path: str | Path,
+    rig: RigConfig | str | Path,
+    plan: PlanSpec | str | Path,
     *,
     material: str | None,
     seed: int = 0,
     calibration: str | Path | None = None,
     scripted: bool = False,
+    planner: Planner | None = None,
 ) -> tuple[SessionFolder, Sweep | None]:
     """Lay out a new session folder; refuses an existing one.
 
-    Unless ``scripted``, the plan file's sweep is planned and every step recorded in the
-    journal now; a scripted session's steps are journaled as its script reaches them. With
-    ``[capture] hdr = true`` the planned poses go to the journal's meta instead and each
-    bracket's frames are journaled as they are taken.
+    ``rig`` and ``plan`` are loaded configs (their files are copied) or paths; ``planner``
+    (built from them when not given) plans the sweep, and the returned folder keeps all
+    three, so a run loads and plans once. Unless ``scripted``, the plan file's sweep is
+    planned and every step recorded in the journal now; a scripted session's steps are
+    journaled as its script reaches them. With ``[capture] hdr = true`` the planned poses go
+    to the journal's meta instead and each bracket's frames are journaled as they are taken.
     """
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise SessionError(
             f"{out} already exists: choose a new --out folder, or `gonio resume {out}` to continue it"
         )
-    rig = load_rig(rig_path)
-    plan = load_plan(plan_path)
-    planner = Planner.for_plan(rig, plan)
+    rig = rig if isinstance(rig, RigConfig) else load_rig(rig)
+    plan = plan if isinstance(plan, PlanSpec) else load_plan(plan)
+    planner = planner or Planner.for_plan(rig, plan)
     ref_pose, ref_joints = reference_geometry(rig, planner)
     sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
     hdr = sweep is not None and plan.capture.hdr
     if sweep is not None and not sweep.steps:
-        raise SessionError(f"plan {plan_path} leaves no measurable pose on this rig: widen its ranges")
+        raise SessionError(f"plan {plan.path} leaves no measurable pose on this rig: widen its ranges")
     out.mkdir(parents=True, exist_ok=True)
     try:
         (out / FRAMES_DIR).mkdir()
-        shutil.copyfile(rig_path, out / RIG_FILE)
-        shutil.copyfile(plan_path, out / PLAN_FILE)
+        shutil.copyfile(rig.path, out / RIG_FILE)
+        shutil.copyfile(plan.path, out / PLAN_FILE)
         cal = None if calibration is None else copy_calibration(calibration, out)
         info = SessionInfo(material, seed, time.time(), rig.name, plan.name,
                            sweep.estimated_s if sweep else 0.0, cal, scripted)
@@ -212,7 +234,7 @@ def create_session(
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
-    return SessionFolder(out), sweep
+    return SessionFolder(out).adopt(rig, plan, planner), sweep
 
 
 def frame_name(step: int) -> str:

@@ -1,9 +1,7 @@
-"""The Python API behind the CLI: what a researcher's capture script calls.
+"""Sessions through the API: plan, capture, resume, scripted sessions, reduce.
 
->>> from acquisition.api import capture, reduce
->>> capture("examples/rig-sim.toml", "examples/plan-quick.toml", "runs/s1",
-...         material="lambert:albedo=0.5", seed=1)            # doctest: +SKIP
->>> reduce("runs/s1", "runs/s1/brdf.h5").table.count.sum()    # doctest: +SKIP
+Each run loads its rig and plan once and builds its planner once; the session folder object
+carries them to the engine (:meth:`SessionFolder.adopt`).
 """
 
 from __future__ import annotations
@@ -16,9 +14,9 @@ from pathlib import Path
 
 from acquisition.config.plan import PlanSpec, load_plan
 from acquisition.config.rig import RigConfig, load_rig
-from acquisition.devices.rig import RigDevices, open_devices
+from acquisition.devices.rig import OperatorPrompt, RigDevices, open_devices
 from acquisition.geometry.kinematics import Pose
-from acquisition.planning.planner import Planner, Sweep  # noqa: F401  (re-exported)
+from acquisition.planning.planner import Planner, Sweep
 from acquisition.planning.timing import TimeModel
 from acquisition.reduction.point import Reduction, reduce_session
 from acquisition.session.capture import CaptureEngine
@@ -110,15 +108,19 @@ def run_session(
     progress: Progress | None = None,
     on_open: OnOpen | None = None,
     observers: Sequence[Observer] = (),
+    prompt: OperatorPrompt | None = None,
 ) -> CaptureResult:
-    """Run (or continue) every step of a pre-planned session that is not done yet."""
+    """Run (or continue) every step of a pre-planned session that is not done yet.
+
+    ``prompt`` asks the operator to swap the sample and the white reference on a real rig.
+    """
     rig = folder.rig()
     material = parse_material(folder.info.material) if folder.info.material else None
     if rig.simulated and material is None:
         raise SessionError(f"{folder.path}: a simulated rig needs a material (--material)")
-    planner = Planner.for_plan(rig, folder.plan())
+    planner = folder.planner()
     with open_devices(rig, planner, material=material, seed=folder.info.seed,
-                      sim_faults=sim_faults) as devices:
+                      sim_faults=sim_faults, prompt=prompt) as devices:
         if on_open:
             on_open(folder, devices.device_time_s())
         t0 = devices.device_time_s()
@@ -141,18 +143,21 @@ def capture(
     calibration: str | Path | None = None,
     observers: Sequence[Observer] = (),
     on_open: OnOpen | None = None,
+    prompt: OperatorPrompt | None = None,
 ) -> CaptureResult:
     """Create a session folder at ``out`` and capture the plan on the rig.
 
     ``calibration`` (a file or folder) is copied into the session for provenance.
     ``on_open(folder, device_time_s)`` is called once the devices are open (e.g. to start a
-    progress ETA from :func:`step_durations`).
+    progress ETA from :func:`step_durations`). ``prompt(target)`` asks the operator to put
+    the ``"sample"`` or ``"white"`` reference on a real rig (refused without one).
     """
-    material = _check_material(load_rig(rig_path), material)
-    folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
-                               calibration=calibration)
+    rig, plan = load_rig(rig_path), load_plan(plan_path)
+    material = _check_material(rig, material)
+    folder, _ = create_session(out, rig, plan, material=material, seed=seed,
+                               calibration=calibration, planner=Planner.for_plan(rig, plan))
     return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers,
-                       on_open=on_open)
+                       on_open=on_open, prompt=prompt)
 
 
 def _check_material(rig: RigConfig, material: str | None) -> str | None:
@@ -169,19 +174,21 @@ def resume(
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
     on_open: OnOpen | None = None,
+    prompt: OperatorPrompt | None = None,
 ) -> CaptureResult:
     """Continue an interrupted session where it stopped (gonio or light-stage).
 
-    ``on_open`` as for :func:`capture` (gonio sessions only).
+    ``on_open`` and ``prompt`` as for :func:`capture` (``on_open``: gonio sessions only).
     """
     from acquisition.lightstage.reduce import is_lightstage_session
 
     if is_lightstage_session(session_dir):
         from acquisition.lightstage.capture import resume_lightstage
 
-        return resume_lightstage(session_dir, progress=progress, observers=observers)  # type: ignore[return-value]
+        return resume_lightstage(session_dir, progress=progress, observers=observers,  # type: ignore[return-value]
+                                 prompt=prompt)
     return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
-                       observers=observers, on_open=on_open)
+                       observers=observers, on_open=on_open, prompt=prompt)
 
 
 class ScriptedSession:
@@ -247,6 +254,7 @@ def scripted_session(
     calibration: str | Path | None = None,
     resume: bool = False,
     sim_faults: Sequence[str] = (),
+    prompt: OperatorPrompt | None = None,
 ) -> Iterator[ScriptedSession]:
     """Open the rig for a scripted capture into the session folder ``out``.
 
@@ -259,15 +267,17 @@ def scripted_session(
         if not folder.info.scripted:
             raise SessionError(f"{out} is not a scripted session: continue it with `gonio resume {out}`")
     else:
-        material = _check_material(load_rig(rig_path), material)
-        folder, _ = create_session(out, rig_path, plan_path, material=material, seed=seed,
-                                   calibration=calibration, scripted=True)
+        rig, plan = load_rig(rig_path), load_plan(plan_path)
+        material = _check_material(rig, material)
+        folder, _ = create_session(out, rig, plan, material=material, seed=seed,
+                                   calibration=calibration, scripted=True,
+                                   planner=Planner.for_plan(rig, plan))
     rig = folder.rig()
     spec = folder.info.material
     mat = parse_material(spec) if spec else None
-    planner = Planner.for_plan(rig, folder.plan())
+    planner = folder.planner()
     with open_devices(rig, planner, material=mat, seed=folder.info.seed,
-                      sim_faults=sim_faults) as devices:
+                      sim_faults=sim_faults, prompt=prompt) as devices:
         yield ScriptedSession(folder, devices, planner)
 
 

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition import api
 from acquisition.analysis.plots import plot_slices
+from acquisition.api import sessions as api
 from acquisition.simworld.truth import relative_errors, truth_table
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 @dataclass

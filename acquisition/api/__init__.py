@@ -1,0 +1,135 @@
+"""The Python API: what a researcher's capture script calls, and the only thing the CLI calls.
+
+>>> from acquisition.api import capture, reduce
+>>> capture("examples/rig-sim.toml", "examples/plan-quick.toml", "runs/s1",
+...         material="lambert:albedo=0.5", seed=1)            # doctest: +SKIP
+>>> reduce("runs/s1", "runs/s1/brdf.h5").table.count.sum()    # doctest: +SKIP
+
+Every name is loaded on first use (PEP 562), so ``import acquisition.api`` and ``gonio --help``
+stay fast: a command pays only for the modules it uses.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "acquisition.api.sessions": (
+        "DEFAULT_MATERIAL", "Progress", "OnOpen", "CaptureResult", "plan_sweep",
+        "predicted_step_s", "step_durations", "run_session", "capture", "resume",
+        "ScriptedSession", "scripted_session", "reduce",
+    ),
+    "acquisition.api.demo": ("run_demo", "DemoResult"),
+    "acquisition.geometry.kinematics": ("Pose",),
+    "acquisition.planning.planner": ("Planner", "Sweep", "Rejection", "Reason"),
+    "acquisition.session.folder": ("SessionFolder",),
+    "acquisition.session.status": ("SessionStatus", "session_status"),
+    "acquisition.session.journal": ("StepRecord",),
+    "acquisition.session.observers": (
+        "Observer", "LogObserver", "LiveReduction", "ProgressObserver", "CallbackObserver",
+    ),
+    "acquisition.session.interrupts": ("sigint_stops_motion",),
+    "acquisition.devices.rig": ("OperatorPrompt",),
+    "acquisition.devices.console": (
+        "Console", "AxisStatus", "ScanResult", "ALL_IDS", "open_console", "scan_port",
+        "scan_rig", "format_status", "format_scan",
+    ),
+    "acquisition.calibrate.radiometric": ("KINDS", "CalibrationRun", "calibrate"),
+    "acquisition.reduction.point": ("Reduction", "reduce_session"),
+    "acquisition.tables": ("IsotropicTable", "MerlTable"),
+    "acquisition.formats.merl": ("read_merl", "write_merl"),
+    "acquisition.formats.export": ("ExportFormat", "export_table", "load_table", "table_info"),
+    "acquisition.lightstage.capture": (
+        "LightStageResult", "capture_lightstage", "resume_lightstage", "plan_lightstage",
+        "session_sequences",
+    ),
+    "acquisition.lightstage.field": ("write_field",),
+    "acquisition.lightstage.relight": ("relight_files",),
+    "acquisition.lightstage.sequences": ("SEQUENCES", "TimeEstimate"),
+    "acquisition.analysis.plots": ("plot_slices", "plot_sweep"),
+    "acquisition.simworld.serve": ("serve_servos", "serve_dmx"),
+    "calibration.raw": ("inspect_raw", "format_inspection"),
+    "drivers.dynamixel.bus": ("COMMON_BAUD_RATES",),
+    "drivers.errors": ("GonioError", "ConfigError", "SessionError"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'acquisition.api' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:  # what type checkers and IDEs see
+    from acquisition.analysis.plots import plot_slices, plot_sweep
+    from acquisition.api.demo import DemoResult, run_demo
+    from acquisition.api.sessions import (
+        DEFAULT_MATERIAL,
+        CaptureResult,
+        OnOpen,
+        Progress,
+        ScriptedSession,
+        capture,
+        plan_sweep,
+        predicted_step_s,
+        reduce,
+        resume,
+        run_session,
+        scripted_session,
+        step_durations,
+    )
+    from acquisition.calibrate.radiometric import KINDS, CalibrationRun, calibrate
+    from acquisition.devices.console import (
+        ALL_IDS,
+        AxisStatus,
+        Console,
+        ScanResult,
+        format_scan,
+        format_status,
+        open_console,
+        scan_port,
+        scan_rig,
+    )
+    from acquisition.devices.rig import OperatorPrompt
+    from acquisition.formats.export import ExportFormat, export_table, load_table, table_info
+    from acquisition.formats.merl import read_merl, write_merl
+    from acquisition.geometry.kinematics import Pose
+    from acquisition.lightstage.capture import (
+        LightStageResult,
+        capture_lightstage,
+        plan_lightstage,
+        resume_lightstage,
+        session_sequences,
+    )
+    from acquisition.lightstage.field import write_field
+    from acquisition.lightstage.relight import relight_files
+    from acquisition.lightstage.sequences import SEQUENCES, TimeEstimate
+    from acquisition.planning.planner import Planner, Reason, Rejection, Sweep
+    from acquisition.reduction.point import Reduction, reduce_session
+    from acquisition.session.folder import SessionFolder
+    from acquisition.session.interrupts import sigint_stops_motion
+    from acquisition.session.journal import StepRecord
+    from acquisition.session.observers import (
+        CallbackObserver,
+        LiveReduction,
+        LogObserver,
+        Observer,
+        ProgressObserver,
+    )
+    from acquisition.session.status import SessionStatus, session_status
+    from acquisition.simworld.serve import serve_dmx, serve_servos
+    from acquisition.tables import IsotropicTable, MerlTable
+    from calibration.raw import format_inspection, inspect_raw
+    from drivers.dynamixel.bus import COMMON_BAUD_RATES
+    from drivers.errors import ConfigError, GonioError, SessionError

@@ -23,7 +23,8 @@ import numpy as np
 from acquisition import api
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Rejection
-from acquisition.session.observers import LiveReduction, LogObserver
+from acquisition.reduction.live import LiveReduction
+from acquisition.session.observers import LogObserver
 from acquisition.session.steps import Checkpoint, Expose, Move, Reference, Step
 
 HERE = Path(__file__).resolve().parent

@@ -53,7 +53,6 @@ import math
 import os
 import select
 import signal
-import sys
 import threading
 import time
 import tty
@@ -633,18 +632,17 @@ def serve_dmx_forever(
     serial_number: int = 12345678,
     refresh_rate_hz: int = 40,
     time_scale: float = 1.0,
-    out: TextIO | None = None,
-    err: TextIO | None = None,
+    out: TextIO,
+    err: TextIO,
 ) -> int:
     """Run one simulated widget until SIGINT/SIGTERM; its device path is the first line of ``out``.
 
-    The path goes to ``out`` (stdout), flushed at once so a parent process can read it. On
+    The path goes to ``out`` (the caller's stdout), flushed at once so a parent process can read it. On
     exit :meth:`SimDmxWidget.sim_summary` is logged (logger ``simulators.dmx``); while this
-    runs, that logger also writes to ``err`` (stderr). Must run in the main thread. Returns the
+    runs, that logger also writes to ``err``. Must run in the main thread. Returns the
     exit code (0).
     """
-    out = sys.stdout if out is None else out
-    handler = logging.StreamHandler(sys.stderr if err is None else err)
+    handler = logging.StreamHandler(err)
     log.addHandler(handler)
     level = log.level
     log.setLevel(logging.INFO)

@@ -324,7 +324,8 @@ def test_unplug_mid_sequence_raises_communication_error(sim: SimDmxWidget) -> No
 
 
 def test_serve_dmx_forever_prints_path_first_and_stops_on_sigterm() -> None:
-    code = "from simulators.dmx import serve_dmx_forever as s; raise SystemExit(s())"
+    code = ("import sys; from simulators.dmx import serve_dmx_forever as s; "
+            "raise SystemExit(s(out=sys.stdout, err=sys.stderr))")
     proc = subprocess.Popen(
         [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -352,7 +353,7 @@ def test_serve_dmx_forever_in_process(capsys) -> None:
         signal.pthread_kill(main, signal.SIGINT)  # to the main thread, which sigwaits for it
 
     threading.Thread(target=fire).start()
-    assert serve_dmx_forever() == 0
+    assert serve_dmx_forever(out=sys.stdout, err=sys.stderr) == 0
     out = capsys.readouterr()
     assert out.out.splitlines()[0].startswith("/dev/")
 

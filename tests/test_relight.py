@@ -12,8 +12,8 @@ import pytest
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
 from acquisition.config.stage import stage_config
+from acquisition.formats.envmap import latlong_directions, read_exr, write_exr
 from acquisition.lightstage.capture import capture_lightstage
-from acquisition.lightstage.envmap import latlong_directions, read_exr, write_exr
 from acquisition.lightstage.field import ReflectanceField, load_field, write_field
 from acquisition.lightstage.relight import light_weights, relight
 from acquisition.session.folder import SessionFolder

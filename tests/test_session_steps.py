@@ -12,10 +12,11 @@ import pytest
 from acquisition import api
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import PlannedPose, Sweep
+from acquisition.reduction.live import LiveReduction
 from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import JOURNAL_FILE, create_session
 from acquisition.session.journal import Journal
-from acquisition.session.observers import CallbackObserver, LiveReduction, Observer
+from acquisition.session.observers import CallbackObserver, Observer
 from acquisition.session.steps import (
     Checkpoint,
     Custom,

@@ -27,7 +27,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.session.status": ("SessionStatus", "session_status"),
     "acquisition.session.journal": ("StepRecord",),
     "acquisition.session.observers": (
-        "Observer", "LogObserver", "LiveReduction", "ProgressObserver", "CallbackObserver",
+        "Observer", "LogObserver", "ProgressObserver", "CallbackObserver",
     ),
     "acquisition.session.interrupts": ("sigint_stops_motion",),
     "acquisition.devices.rig": ("OperatorPrompt",),
@@ -37,6 +37,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     "acquisition.calibrate.radiometric": ("KINDS", "CalibrationRun", "calibrate"),
     "acquisition.reduction.point": ("Reduction", "reduce_session"),
+    "acquisition.reduction.live": ("LiveReduction",),
     "acquisition.tables": ("IsotropicTable", "MerlTable"),
     "acquisition.formats.merl": ("read_merl", "write_merl"),
     "acquisition.formats.export": ("ExportFormat", "export_table", "load_table", "table_info"),
@@ -116,13 +117,13 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.lightstage.relight import relight_files
     from acquisition.lightstage.sequences import SEQUENCES, TimeEstimate
     from acquisition.planning.planner import Planner, Reason, Rejection, Sweep
+    from acquisition.reduction.live import LiveReduction
     from acquisition.reduction.point import Reduction, reduce_session
     from acquisition.session.folder import SessionFolder
     from acquisition.session.interrupts import sigint_stops_motion
     from acquisition.session.journal import StepRecord
     from acquisition.session.observers import (
         CallbackObserver,
-        LiveReduction,
         LogObserver,
         Observer,
         ProgressObserver,

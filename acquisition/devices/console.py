@@ -35,11 +35,10 @@ from acquisition.devices.health import HealthLimits
 from acquisition.devices.servos import ServoRig, open_servos, park_ticks
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner
-from acquisition.simworld.servos import start_simulated_buses
+from acquisition.simworld.servos import scaled_clock, start_simulated_buses
 from drivers.dynamixel import COMMON_BAUD_RATES, ServoBus
 from drivers.dynamixel.codes import HARDWARE_BITS
 from drivers.errors import ConfigError, LimitError, SafetyStop
-from simulators.clock import SimClock
 
 ALL_IDS = range(253)
 """Every servo ID a scan can find (0–252)."""
@@ -272,7 +271,7 @@ def scan_rig(rig_path: str | Path, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
         sims = {}
         if any(b.simulated for b in rig.buses.values()):
             sims = stack.enter_context(start_simulated_buses(
-                rig, SimClock(rig.time_scale), park_ticks(rig, Planner(rig)),
+                rig, scaled_clock(rig), park_ticks(rig, Planner(rig)),
                 sim_faults=sim_faults, seed=seed))
         return [
             scan_port(sims[name].port if name in sims else cfg.port, bauds=bauds, ids=ids,

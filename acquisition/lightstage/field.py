@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.lightstage.envmap import read_exr, write_exr
+from acquisition.formats.envmap import read_exr, write_exr
 from acquisition.lightstage.reduce import _done, dark_rate, led_calibration, light_of, load_frame
 from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect
 from acquisition.session.folder import SessionFolder

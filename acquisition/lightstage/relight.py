@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.lightstage.envmap import latlong_directions, read_exr, write_exr
+from acquisition.formats.envmap import latlong_directions, read_exr, write_exr
 from acquisition.lightstage.field import ReflectanceField, load_field
 from drivers.errors import ConfigError
 

@@ -45,6 +45,7 @@ from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage, linearize, roi_mean
 from calibration.raw import load_raw
+from calibration.signal import roi_signal
 from drivers.errors import SessionError
 
 
@@ -106,16 +107,10 @@ def frame_signal(
     path: Path, roi: tuple[int, int, int, int], step: int,
     bundle: CalibrationBundle | None = None,
 ) -> FrameSignal:
-    """Linearize a frame (with the bundle's corrections, if given) and average its ROI.
-
-    The variance is the noise model's when the bundle has one for the frame's ISO, else the
-    scatter over the ROI.
-    """
-    frame = load_raw(path)
-    image = linearize(frame) if bundle is None else bundle.linearize(frame)
-    x0, y0, x1, y1 = roi
-    mean, var, n = roi_mean(image, (x0, y0, x1 - x0, y1 - y0))
-    return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
+    """Linearize a frame (with the bundle's corrections, if given) and average its ROI
+    (:func:`calibration.signal.roi_signal`)."""
+    mean, var, n = roi_signal(path, roi, bundle)
+    return FrameSignal(step, mean, var, n)
 
 
 def linearize_with_variance(path: Path, rig: RigConfig,

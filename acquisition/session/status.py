@@ -13,6 +13,7 @@ from acquisition.session.folder import SessionFolder
 from acquisition.session.steps import (
     REFERENCE,
 )
+from calibration.signal import roi_signal
 
 if TYPE_CHECKING:
     pass
@@ -112,11 +113,8 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
     # stage's per-LED white frames are lit by different lights).
     refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
     if drift and len(refs) >= 2:
-        from acquisition.reduction.point import frame_signal
-
         roi = folder.rig().camera.roi
-        sig = np.array([frame_signal(folder.frames_dir / str(r.frame), roi, r.step).signal
-                        for r in refs])
+        sig = np.array([roi_signal(folder.frames_dir / str(r.frame), roi)[0] for r in refs])
         drift_pct = float(np.max(np.ptp(sig, axis=0) / np.mean(sig, axis=0)) * 100.0)
     return SessionStatus(
         folder, counts, by_kind, busy, span, device,

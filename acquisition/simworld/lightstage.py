@@ -30,7 +30,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import simulated_sensor
 from acquisition.config.stage import StageConfig
-from acquisition.lightstage.envmap import latlong_directions
+from acquisition.formats.envmap import latlong_directions
 from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect, tangent_frames
 from acquisition.simworld.scene import SampleHolder, render_image, white_material
 from drivers.dmx import DmxWidget
@@ -84,7 +84,7 @@ def render_environment(rig: RigConfig, camera_dir: np.ndarray, material: Materia
                        env: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Radiance image (h, w, 3) of the sample lit by ``env`` from the upper hemisphere.
 
-    ``env`` is a lat-long map (H, W, 3) of radiance (see :mod:`acquisition.lightstage.envmap`);
+    ``env`` is a lat-long map (H, W, 3) of radiance (see :mod:`acquisition.formats.envmap`);
     every env pixel above the horizon is a distant light of its solid angle:
     L(p) = Σ_j env_j · Ω_j · f(wi_j, wo) · max(cos θi_j, 0).
     """

@@ -21,8 +21,9 @@ def serve_servos(ids: Sequence[int], baud: int = 57600, time_scale: float = 1.0,
     return serve_servos_forever(list(ids), baud, time_scale, list(faults), seed)
 
 
-def serve_dmx(out: TextIO | None = None, err: TextIO | None = None) -> int:
-    """An Enttec DMX USB Pro compatible widget; its path is the first line of ``out``."""
+def serve_dmx(out: TextIO, err: TextIO) -> int:
+    """An Enttec DMX USB Pro compatible widget; its path is the first line of ``out``, its
+summary goes to ``err`` on exit."""
     from simulators.dmx import serve_dmx_forever
 
     return serve_dmx_forever(out=out, err=err)

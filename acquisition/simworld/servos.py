@@ -23,6 +23,12 @@ def make_clock(rig: RigConfig) -> SimClock:
     return SteppedClock() if rig.sim_clock == "stepped" else SimClock(rig.time_scale)
 
 
+def scaled_clock(rig: RigConfig) -> SimClock:
+    """A clock running at the rig's ``time_scale`` × host time (for external clients, whose
+    timeouts are measured on the host's clock)."""
+    return SimClock(rig.time_scale)
+
+
 @contextmanager
 def start_simulated_buses(
     rig: RigConfig,

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import OpenImageIO as oiio
 
 from calibration.linearize import LinearImage, NoiseModel, linearize
 from calibration.raw import RawFrame
@@ -56,6 +55,8 @@ def provenance(**extra: Any) -> dict[str, Any]:
 
 def write_exr(path: Path, image: np.ndarray, attributes: Mapping[str, Any] | None = None) -> None:
     """Write a 2-D (or H×W×C) array as float32 OpenEXR with ``gonio:*`` attributes, atomically."""
+    import OpenImageIO as oiio
+
     arr = np.ascontiguousarray(image, dtype=np.float32)
     if arr.ndim == 2:
         arr = arr[:, :, None]
@@ -82,6 +83,8 @@ def write_exr(path: Path, image: np.ndarray, attributes: Mapping[str, Any] | Non
 
 def read_exr(path: Path) -> tuple[np.ndarray, dict[str, Any]]:
     """Read an EXR: (H×W float32 for one channel, else H×W×C) and its ``gonio:*`` attributes."""
+    import OpenImageIO as oiio
+
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise CalibrationError(

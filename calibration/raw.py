@@ -25,14 +25,15 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import OpenImageIO as oiio
-import rawpy
-import tifffile
 
 from drivers.errors import RawFormatError
+
+if TYPE_CHECKING:
+    import rawpy
+    import tifffile
 
 COLOURS: tuple[str, str, str] = ("R", "G", "B")
 BLACK_TOLERANCE_DN = 2.0
@@ -144,6 +145,8 @@ def _fail(path: Path, why: str) -> RawFormatError:
 
 def _bayer_layout(raw: rawpy.RawPy, path: Path) -> tuple[str, np.ndarray]:
     """CFA pattern string and the 2×2 colour indices; RawFormatError if not an RGB Bayer."""
+    import rawpy
+
     fix = "gonio reads Bayer RAW files only"
     if raw.raw_type != rawpy.RawType.Flat:
         raise _fail(path, f"not a Bayer mosaic (LibRaw raw type {raw.raw_type.name}: a stacked "
@@ -172,6 +175,8 @@ def _tag_values(tag: tifffile.TiffTag) -> np.ndarray:
 
 def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
     """Black-level and area tags of a DNG's CFA image IFD; None if the file is not a DNG."""
+    import tifffile
+
     try:
         with tifffile.TiffFile(path) as tif:
             first = tif.pages.first
@@ -260,6 +265,8 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
     BlackLevelWarning
         The optical-black pixels differ from the stated black level by more than 2 DN.
     """
+    import rawpy
+
     path = Path(path)
     if not path.is_file():
         raise _fail(path, "no such RAW file; check the path")
@@ -374,6 +381,8 @@ def _positive(value: Any) -> float | None:
 
 def _capture_metadata(path: Path) -> dict[str, Any]:
     """Exposure (s), ISO, f-number, make and model as OpenImageIO reads them (None if absent)."""
+    import OpenImageIO as oiio
+
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()  # clear the pending error message

@@ -20,9 +20,6 @@ import os
 from collections.abc import Sequence
 
 import numpy as np
-import OpenImageIO as oiio
-from scipy import sparse
-from scipy.sparse.linalg import spsolve
 
 from drivers.errors import CalibrationError, RawFormatError
 
@@ -103,6 +100,9 @@ def recover_response(
 
 def _solve(zs: np.ndarray, log_t: np.ndarray, weights: np.ndarray, smoothness: float) -> np.ndarray:
     """Least-squares g (LEVELS,) for samples ``zs`` (P, N): sparse normal equations."""
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+
     p, n = zs.shape
     wz = weights[zs].ravel()
     k_data = np.arange(p * n)
@@ -160,6 +160,8 @@ def merge_ldr(
 
 def load_ldr(path: str | os.PathLike[str]) -> tuple[np.ndarray, float | None]:
     """An 8-bit JPEG/TIFF (H×W×C uint8) and its exposure time (s, from EXIF; None if absent)."""
+    import OpenImageIO as oiio
+
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise RawFormatError(f"{path}: cannot open image ({oiio.geterror()}); check the file")

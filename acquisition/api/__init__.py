@@ -16,11 +16,12 @@ from typing import TYPE_CHECKING, Any
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.api.sessions": (
-        "DEFAULT_MATERIAL", "Progress", "OnOpen", "CaptureResult", "plan_sweep",
+        "Progress", "OnOpen", "CaptureResult", "plan_sweep",
         "predicted_step_s", "step_durations", "run_session", "capture", "resume",
         "ScriptedSession", "scripted_session", "reduce",
     ),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
+    "acquisition.simworld.materials": ("DEFAULT_MATERIAL",),
     "acquisition.geometry.kinematics": ("Pose",),
     "acquisition.planning.planner": ("Planner", "Sweep", "Rejection", "Reason"),
     "acquisition.session.folder": ("SessionFolder",),
@@ -76,7 +77,6 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.analysis.plots import plot_slices, plot_sweep
     from acquisition.api.demo import DemoResult, run_demo
     from acquisition.api.sessions import (
-        DEFAULT_MATERIAL,
         CaptureResult,
         OnOpen,
         Progress,
@@ -129,6 +129,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         ProgressObserver,
     )
     from acquisition.session.status import SessionStatus, session_status
+    from acquisition.simworld.materials import DEFAULT_MATERIAL
     from acquisition.simworld.serve import serve_dmx, serve_servos
     from acquisition.tables import IsotropicTable, MerlTable
     from calibration.raw import format_inspection, inspect_raw

@@ -25,10 +25,8 @@ from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
-from acquisition.simworld.materials import parse_material
+from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
-
-DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 
 Progress = Callable[[int, int, StepRecord], None]
 OnOpen = Callable[[SessionFolder, float | None], None]

@@ -1,8 +1,14 @@
-"""The ``gonio`` command line: a thin layer over the Python API.
+"""The ``gonio`` command line: a thin layer over :mod:`acquisition.api`.
 
-Each command group lives in its own module exposing ``register(subparsers)``, which adds its
-parser(s) with ``set_defaults(func=run)``; ``run(args) -> int`` returns the exit code. Errors
+Each command group lives in its own module exposing ``COMMANDS`` (command name → one-line
+help) and ``register(subparsers)``, which adds the full parser(s) with
+``set_defaults(func=run)``; ``run(args) -> int`` returns the exit code. Only the command being
+run is registered in full, so ``gonio --help`` imports nothing but these modules. Errors
 derived from :class:`drivers.errors.GonioError` are printed as one line, never a traceback.
+
+Grammar shared by every command: outputs are ``-o/--out``; ``--json`` prints one JSON object
+on stdout instead of the text report; ``--seed`` is the simulated devices' noise seed;
+``--sim-fault SPEC`` injects faults into simulated devices.
 """
 
 from __future__ import annotations
@@ -11,6 +17,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 
 from acquisition import api
 
@@ -29,23 +36,49 @@ COMMAND_MODULES: tuple[str, ...] = (
 """Modules that register sub-commands, in the order ``gonio --help`` lists them."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full ``gonio`` argument parser."""
+def gonio_version() -> str:
+    """The installed distribution's version (``gonio --version``)."""
+    try:
+        return version("gonio")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare source tree
+        return "unknown"
+
+
+def build_parser(command: str | None = None, *, full: bool = True) -> argparse.ArgumentParser:
+    """The ``gonio`` argument parser.
+
+    ``full``: every command's complete parser (tests, completion). Otherwise only ``command``'s
+    module registers its parsers in full and the others are listed by name and help.
+    """
     parser = argparse.ArgumentParser(
         prog="gonio",
         description="Acquisition control for gonioreflectometers and light stages.",
     )
+    parser.add_argument("--version", action="version", version=f"gonio {gonio_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
     for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+        module = importlib.import_module(name)
+        if full or command in module.COMMANDS:
+            module.register(sub)
+        else:
+            for cmd, text in module.COMMANDS.items():
+                sub.add_parser(cmd, help=text)
     return parser
+
+
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The sub-command named in ``argv`` (the first argument not starting with ``-``)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``gonio`` console script; returns the process exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_command_in(argv), full=False)
     args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
     try:
         return int(args.func(args) or 0)
     except api.GonioError as exc:

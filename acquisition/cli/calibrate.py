@@ -5,18 +5,22 @@ from __future__ import annotations
 import argparse
 
 from acquisition import api
+from acquisition.cli.options import add_json, add_out, add_seed, report
 from acquisition.cli.progress import step_bar
+
+COMMANDS = {"calibrate": "capture dark/flat/noise/white calibration into a bundle"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="capture dark/flat/noise/white calibration into a bundle")
+    p = sub.add_parser("calibrate", help=COMMANDS["calibrate"])
     p.add_argument("kind", choices=api.KINDS, help="what to calibrate")
     p.add_argument("--rig", required=True, help="rig file (TOML)")
-    p.add_argument("--out", required=True, help="calibration bundle folder (created or updated)")
+    add_out(p, "calibration bundle folder (created or updated)", required=True)
     p.add_argument("--frames", type=int, help="frames per measurement (dark 8, flat 16, white 4)")
     p.add_argument("--exposure", type=float, help="exposure time, s (default: the rig's)")
     p.add_argument("--iso", type=int, help="ISO (default: the rig's)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated devices")
+    add_seed(p)
+    add_json(p)
     p.set_defaults(func=run)
 
 
@@ -26,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
                            exposure_s=args.exposure, iso=args.iso, seed=args.seed,
                            progress=lambda d, t: bar(d, t))
     details = ", ".join(f"{k} {_fmt(v)}" for k, v in result.summary.items())
-    print(f"{result.bundle}: {result.kind} from {result.frames} frames ({details})")
+    report(args, result, [f"{result.bundle}: {result.kind} from {result.frames} frames ({details})"])
     return 0
 
 

@@ -9,43 +9,12 @@ between commands. Moves run under the Ctrl-C handler of :mod:`acquisition.sessio
 from __future__ import annotations
 
 import argparse
-import logging
-import sys
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 from acquisition import api
-
-LOGGERS = ("acquisition.devices",)
-"""Loggers whose records the CLI shows on stderr (health-guard pauses)."""
-
-
-@contextmanager
-def operator_output() -> Iterator[None]:
-    """Show warnings (e.g. the USB latency timer) and guard notices as ``gonio: …`` lines."""
-
-    def show(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
-        print(f"gonio: warning: {message}", file=sys.stderr, flush=True)
-
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("gonio: %(message)s"))
-    loggers = [logging.getLogger(name) for name in LOGGERS]
-    saved = [(lg, lg.level, lg.propagate) for lg in loggers]
-    for lg in loggers:
-        lg.addHandler(handler)
-        lg.setLevel(logging.INFO)
-        lg.propagate = False
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
-            warnings.showwarning = show
-            yield
-    finally:
-        for lg, level, propagate in saved:
-            lg.removeHandler(handler)
-            lg.setLevel(level)
-            lg.propagate = propagate
+from acquisition.cli.operator import operator_output
+from acquisition.cli.options import add_json, add_seed, add_sim_fault, report
 
 
 def _ids(text: str) -> list[int]:
@@ -62,20 +31,31 @@ def _ids(text: str) -> list[int]:
     return sorted(set(out))
 
 
-def _common(p: argparse.ArgumentParser, rig_required: bool = True) -> None:
-    from acquisition.cli.capture import add_sim_fault_option  # capture imports this module
+COMMANDS = {
+    "status": "table of every axis: position, goal, temperature, errors",
+    "scan": "find servos on the rig's ports (or --port) over baud rates",
+    "jog": "move one axis by DEG degrees (the others hold)",
+    "move": "move to a pose (θi, θr, Δφ in degrees)",
+    "home": "move axes to 0° (their zero_tick); all if none named",
+    "park": "move to the park pose (the white-reference pose)",
+    "torque": "switch servo torque on or off",
+    "reboot": "reboot an axis' servo to clear a hardware error",
+}
 
+
+def _common(p: argparse.ArgumentParser, rig_required: bool = True) -> None:
     p.add_argument("--rig", required=rig_required, help="rig file (TOML)")
-    add_sim_fault_option(p)
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated fault injection")
+    add_sim_fault(p)
+    add_seed(p)
+    add_json(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("status", help="table of every axis: position, goal, temperature, errors")
+    p = sub.add_parser("status", help=COMMANDS["status"])
     _common(p)
     p.set_defaults(func=run_status)
 
-    p = sub.add_parser("scan", help="find servos on the rig's ports (or --port) over baud rates")
+    p = sub.add_parser("scan", help=COMMANDS["scan"])
     _common(p, rig_required=False)
     p.add_argument("--port", help="scan this port instead of the rig's buses")
     p.add_argument("--bauds", type=int, nargs="+", default=None,
@@ -84,35 +64,35 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="IDs to look for, e.g. 1-8 (default: all, by broadcast ping)")
     p.set_defaults(func=run_scan)
 
-    p = sub.add_parser("jog", help="move one axis by DEG degrees (the others hold)")
+    p = sub.add_parser("jog", help=COMMANDS["jog"])
     _common(p)
     p.add_argument("axis")
     p.add_argument("deg", type=float, help="relative move (degrees; negative allowed)")
     p.set_defaults(func=run_jog)
 
-    p = sub.add_parser("move", help="move to a pose (θi, θr, Δφ in degrees)")
+    p = sub.add_parser("move", help=COMMANDS["move"])
     _common(p)
     p.add_argument("--theta-i", type=float, required=True)
     p.add_argument("--theta-r", type=float, required=True)
     p.add_argument("--delta-phi", type=float, required=True)
     p.set_defaults(func=run_move)
 
-    p = sub.add_parser("home", help="move axes to 0° (their zero_tick); all if none named")
+    p = sub.add_parser("home", help=COMMANDS["home"])
     _common(p)
     p.add_argument("axes", nargs="*", metavar="AXIS")
     p.set_defaults(func=run_home)
 
-    p = sub.add_parser("park", help="move to the park pose (the white-reference pose)")
+    p = sub.add_parser("park", help=COMMANDS["park"])
     _common(p)
     p.set_defaults(func=run_park)
 
-    p = sub.add_parser("torque", help="switch servo torque on or off")
+    p = sub.add_parser("torque", help=COMMANDS["torque"])
     _common(p)
     p.add_argument("state", choices=("on", "off"))
     p.add_argument("axes", nargs="*", metavar="AXIS", help="axes (default: all)")
     p.set_defaults(func=run_torque)
 
-    p = sub.add_parser("reboot", help="reboot an axis' servo to clear a hardware error")
+    p = sub.add_parser("reboot", help=COMMANDS["reboot"])
     _common(p)
     p.add_argument("axis")
     p.set_defaults(func=run_reboot)
@@ -125,14 +105,16 @@ def _console(args: argparse.Namespace) -> Iterator[api.Console]:
         yield con
 
 
-def _print_joints(joints: dict[str, float]) -> None:
-    print("  ".join(f"{name} {deg:.2f}°" for name, deg in joints.items()) + "  (read back)")
+def _joints(args: argparse.Namespace, joints: dict[str, float]) -> int:
+    report(args, {"joints_deg": joints},
+           ["  ".join(f"{name} {deg:.2f}°" for name, deg in joints.items()) + "  (read back)"])
+    return 0
 
 
 def run_status(args: argparse.Namespace) -> int:
     with _console(args) as con:
         rows = con.status()
-    print(api.format_status(rows))
+    report(args, {"axes": rows}, [api.format_status(rows)])
     return 1 if any(r.errors for r in rows) else 0
 
 
@@ -147,45 +129,43 @@ def run_scan(args: argparse.Namespace) -> int:
                                    sim_faults=args.sim_fault, seed=args.seed)
         else:
             raise api.ConfigError("scan needs --rig RIG (scan its buses) or --port PORT")
-    print(api.format_scan(results))
+    report(args, {"ports": results}, [api.format_scan(results)])
     return 0 if any(r.found for r in results) else 1
 
 
 def run_jog(args: argparse.Namespace) -> int:
     with _console(args) as con:
-        _print_joints(con.jog(args.axis, args.deg))
-    return 0
+        return _joints(args, con.jog(args.axis, args.deg))
 
 
 def run_move(args: argparse.Namespace) -> int:
     with _console(args) as con:
-        _print_joints(con.move_pose(args.theta_i, args.theta_r, args.delta_phi))
-    return 0
+        return _joints(args, con.move_pose(args.theta_i, args.theta_r, args.delta_phi))
 
 
 def run_home(args: argparse.Namespace) -> int:
     with _console(args) as con:
-        _print_joints(con.home(args.axes or None))
-    return 0
+        return _joints(args, con.home(args.axes or None))
 
 
 def run_park(args: argparse.Namespace) -> int:
     with _console(args) as con:
-        _print_joints(con.park())
-    return 0
+        return _joints(args, con.park())
 
 
 def run_torque(args: argparse.Namespace) -> int:
     with _console(args) as con:
         con.set_torque(args.state == "on", args.axes or None)
         names = args.axes or con.axis_names
-    print(f"torque {args.state}: {', '.join(names)}")
+    report(args, {"torque": args.state, "axes": names},
+           [f"torque {args.state}: {', '.join(names)}"])
     return 0
 
 
 def run_reboot(args: argparse.Namespace) -> int:
     with _console(args) as con:
         row = con.reboot(args.axis)
-    print(f"rebooted axis '{row.axis}' (servo {row.servo_id}): no hardware error, torque off; "
-          f"`gonio torque on` before moving")
+    report(args, {"rebooted": row},
+           [f"rebooted axis '{row.axis}' (servo {row.servo_id}): no hardware error, torque off; "
+            f"`gonio torque on` before moving"])
     return 0

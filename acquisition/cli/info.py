@@ -6,21 +6,26 @@ import argparse
 from pathlib import Path
 
 from acquisition import api
+from acquisition.cli.options import add_json, report
+
+COMMANDS = {"info": "summarise a session folder or a BRDF table (HDF5 or MERL)"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("info", help="summarise a session folder or a BRDF table (HDF5 or MERL)")
+    p = sub.add_parser("info", help=COMMANDS["info"])
     p.add_argument("path", help="session folder, isotropic table (.h5) or MERL file (.binary)")
     p.add_argument("--no-drift", action="store_true",
                    help="skip reading the white-reference frames (faster on big sessions)")
+    add_json(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if path.is_dir():
-        lines = api.session_status(path, drift=not args.no_drift).lines()
+        status = api.session_status(path, drift=not args.no_drift)
+        report(args, status.to_json(), status.lines())
     else:
-        lines = api.table_info(path).lines()
-    print("\n".join(lines))
+        info = api.table_info(path)
+        report(args, info, info.lines())
     return 0

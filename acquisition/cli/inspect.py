@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from acquisition import api
+from acquisition.cli.options import add_json, report
+
+COMMANDS = {"inspect": "show the CFA pattern, levels and exposure of a RAW file"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("inspect", help="show the CFA pattern, levels and exposure of a RAW file")
+    p = sub.add_parser("inspect", help=COMMANDS["inspect"])
     p.add_argument("file", help="RAW file (DNG, NEF, CR2, ARW, ...)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     info = api.inspect_raw(args.file)
-    print(json.dumps(info) if args.json else api.format_inspection(info))
+    report(args, info, [api.format_inspection(info)])
     return 0

@@ -1,9 +1,43 @@
-"""The operator at the terminal: the prompt that asks them to swap targets on a real rig."""
+"""The operator at the terminal: notices from the devices, and the prompt that asks them to
+swap targets on a real rig."""
 
 from __future__ import annotations
 
+import logging
 import sys
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+LOGGERS = ("acquisition.devices",)
+"""Loggers whose records the CLI shows on stderr (health-guard pauses)."""
+
+
+@contextmanager
+def operator_output() -> Iterator[None]:
+    """Show warnings (e.g. the USB latency timer) and guard notices as ``gonio: …`` lines."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+        print(f"gonio: warning: {message}", file=sys.stderr, flush=True)
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("gonio: %(message)s"))
+    loggers = [logging.getLogger(name) for name in LOGGERS]
+    saved = [(lg, lg.level, lg.propagate) for lg in loggers]
+    for lg in loggers:
+        lg.addHandler(handler)
+        lg.setLevel(logging.INFO)
+        lg.propagate = False
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            warnings.showwarning = show
+            yield
+    finally:
+        for lg, level, propagate in saved:
+            lg.removeHandler(handler)
+            lg.setLevel(level)
+            lg.propagate = propagate
 
 
 def terminal_prompt() -> Callable[[str], None] | None:

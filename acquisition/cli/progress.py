@@ -14,8 +14,6 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
-from tqdm import tqdm
-
 from acquisition import api
 
 DISABLE: bool | None = None
@@ -110,9 +108,18 @@ class StepBar:
         bar.update(done - bar.n)
 
 
+def say(line: str) -> None:
+    """Print a line on stdout without breaking a progress bar on the terminal."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stdout)
+
+
 @contextmanager
 def step_bar(desc: str, unit: str = "step") -> Iterator[StepBar]:
     """A :class:`StepBar` on stderr (hidden when stderr is not a terminal)."""
+    from tqdm import tqdm
+
     bar = tqdm(desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, disable=DISABLE)
     try:
         yield StepBar(bar)

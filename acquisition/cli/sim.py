@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from acquisition import api
+from acquisition.cli.options import add_seed, add_sim_fault
 
 
 def _ids(text: str) -> list[int]:
@@ -23,8 +24,11 @@ def _ids(text: str) -> list[int]:
     return ids
 
 
+COMMANDS = {"sim": "run a simulated device in the foreground"}
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    sim = sub.add_parser("sim", help="run a simulated device in the foreground")
+    sim = sub.add_parser("sim", help=COMMANDS["sim"])
     devices = sim.add_subparsers(dest="device", metavar="DEVICE")
     devices.required = True
 
@@ -33,10 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baud", type=int, default=57600)
     p.add_argument("--time-scale", type=float, default=1.0,
                    help="simulated seconds per real second (default 1)")
-    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
-                   help="inject a fault: drop=P, corrupt=P, delay=MS, overload:id=N,after=S, "
-                        "overheat:id=N (repeatable)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
+    add_sim_fault(p)
+    p.add_argument("--fault", dest="old_fault", action="append", default=[], metavar="SPEC",
+                   help="deprecated spelling of --sim-fault")
+    add_seed(p)
     p.set_defaults(func=run_servos)
 
     p = devices.add_parser("dmx", help="an Enttec DMX USB Pro compatible widget")
@@ -44,7 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_servos(args: argparse.Namespace) -> int:
-    return api.serve_servos(args.ids, args.baud, args.time_scale, args.fault, args.seed)
+    if args.old_fault:
+        print("gonio: warning: --fault is deprecated: use --sim-fault", file=sys.stderr)
+    faults = [*args.sim_fault, *args.old_fault]
+    return api.serve_servos(args.ids, args.baud, args.time_scale, faults, args.seed)
 
 
 def run_dmx(args: argparse.Namespace) -> int:

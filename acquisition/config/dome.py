@@ -24,7 +24,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import ConvexHull, SphericalVoronoi
 
 from drivers.errors import ConfigError
 
@@ -37,6 +36,8 @@ def geodesic_sphere(frequency: int) -> np.ndarray:
     Every icosahedron face is split into ``frequency²`` triangles on a barycentric grid and
     the grid points are projected onto the unit sphere.
     """
+    from scipy.spatial import ConvexHull
+
     if not 1 <= frequency <= 64:
         raise ValueError(f"geodesic frequency must be 1–64, got {frequency}")
     # icosahedron: poles on ±z, two rings of five at elevation ±atan(1/2)
@@ -156,6 +157,8 @@ def solid_angles_sr(directions: np.ndarray, *, hemisphere: bool = True) -> np.nd
     ConfigError
         If two lights coincide, or (hemisphere) a light is not above the horizon.
     """
+    from scipy.spatial import SphericalVoronoi
+
     d = np.asarray(directions, dtype=float)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     if hemisphere:

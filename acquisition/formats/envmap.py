@@ -13,7 +13,6 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 from drivers.errors import ConfigError, StorageError
 
@@ -33,6 +32,8 @@ def latlong_directions(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
 def write_exr(path: str | Path, image: np.ndarray,
               attributes: Mapping[str, object] | None = None) -> None:
     """Write a float32 RGB EXR with typed attributes (str, int, float, float sequences)."""
+    import OpenImageIO as oiio
+
     path = Path(path)
     data = np.ascontiguousarray(image, dtype=np.float32)
     spec = oiio.ImageSpec(data.shape[1], data.shape[0], data.shape[2], oiio.FLOAT)
@@ -58,6 +59,8 @@ def write_exr(path: str | Path, image: np.ndarray,
 
 def read_exr(path: str | Path) -> tuple[np.ndarray, dict[str, object]]:
     """An image (H, W, C) float32 and its attributes, from any file OpenImageIO reads."""
+    import OpenImageIO as oiio
+
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ConfigError(f"cannot read image {path} ({oiio.geterror()}); check the path and format")

@@ -27,10 +27,9 @@ from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import INFO_FILE, SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
-from acquisition.simworld.materials import parse_material
+from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
 
-DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 META_KEY = "lightstage"
 
 DEFAULT_PLAN = """\

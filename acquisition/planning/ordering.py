@@ -23,7 +23,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 Cost = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """Move duration (s) between joint arrays (…, J) and (…, J), broadcast."""
@@ -161,6 +160,8 @@ def nearest_neighbour(problem: Problem, k: int = 10) -> tuple[np.ndarray, np.nda
     joints, re-ranked by the true metric); a step takes the first unvisited one of its list,
     and only when the whole list is visited searches what is left.
     """
+    from scipy.spatial import cKDTree
+
     n = problem.n
     if n == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -263,6 +264,8 @@ def best_configurations(problem: Problem, order: np.ndarray,
 # ---------------------------------------------------------------------------- local search
 def _neighbours(tour: _Tour, k: int) -> np.ndarray:
     """(N, k) nearest pose nodes of each pose node under the current configurations."""
+    from scipy.spatial import cKDTree
+
     n = tour.n
     k = min(k, n - 1)
     if k <= 0:
@@ -641,6 +644,8 @@ def nearest_move_bound(problem: Problem, k: int = 16) -> float:
     configuration outside it could be cheaper; otherwise that configuration is compared with
     every other one.
     """
+    from scipy.spatial import cKDTree
+
     n = problem.n
     pose_of, slot_of = np.nonzero(problem.valid)
     flat = problem.configs[pose_of, slot_of]

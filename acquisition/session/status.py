@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,19 @@ class SessionStatus:
     @property
     def done(self) -> int:
         return self.counts.get("done", 0)
+
+    def to_json(self) -> dict[str, Any]:
+        """The status as plain JSON types (``gonio info --json``)."""
+        return {
+            "session": str(self.folder.path), "info": self.folder.info.to_json(),
+            "counts": self.counts, "total": self.total, "done": self.done,
+            "by_kind": {k: {"done": d, "total": n} for k, (d, n) in self.by_kind.items()},
+            "host_busy_s": self.host_busy_s, "host_span_s": self.host_span_s,
+            "device_s": self.device_s, "runs": self.runs, "retakes": self.retakes,
+            "events": [{"at": at, "level": lv, "step": st, "message": msg}
+                       for at, lv, st, msg in self.events],
+            "drift_pct": self.drift_pct,
+        }
 
     def lines(self, max_events: int = 10) -> list[str]:
         info = self.folder.info

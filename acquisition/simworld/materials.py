@@ -15,6 +15,9 @@ from acquisition.formats.merl import MerlBRDF, read_merl
 from drivers.errors import ConfigError, MaterialError
 from simulators.materials import MATERIAL_PARSERS, Material, material_from_spec
 
+DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
+"""What the simulated camera sees when no material is given: a rough dielectric GGX."""
+
 
 def parse_material(spec: str) -> Material:
     """The simulated material of a spec string (``merl:PATH`` included); raises

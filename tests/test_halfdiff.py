@@ -14,9 +14,11 @@ from acquisition.geometry.halfdiff import (
     halfdiff_from_vectors,
     merl_bin_edges,
     merl_flat_index,
+    merl_flat_index_rad,
     merl_indices,
     vectors_from_halfdiff,
 )
+from acquisition.tables import MerlTable
 from simulators.materials import directions_from_angles
 
 
@@ -139,3 +141,35 @@ def test_fast_unclamped_index_equals_general_path():
     inside = (fast >= 0) & (pd <= 180.0)
     np.testing.assert_array_equal(fast[inside], merl_flat_index(th, td, pd)[inside])
     assert (fast == -2).sum() == 10 and (fast == -1).sum() > 0
+
+
+def test_degree_and_radian_index_paths_agree_on_exact_edges():
+    # Bin edges given in degrees: the degree path converts like np.radians, as the reference's
+    # callers and the numba kernel do, so a value on an edge gets the radian path's bin.
+    edges_h, edges_d, _ = merl_bin_edges()
+    th, td, pd = (a.reshape(-1) for a in np.meshgrid(
+        edges_h, edges_d, [-180.0, -90.5, -0.0, 0.0, 1.0, 90.0, 179.5, 180.0], indexing="ij"))
+    every_phi = np.arange(-180.0, 180.5, 0.5)
+    th = np.concatenate([th, np.resize(edges_h, every_phi.size)])
+    td = np.concatenate([td, np.resize(edges_d[::-1], every_phi.size)])
+    pd = np.concatenate([pd, every_phi])
+    deg = merl_flat_index(th, td, pd, clamp=False)
+    rad = merl_flat_index_rad(np.radians(th), np.radians(td), np.radians(pd), clamp=False)
+    np.testing.assert_array_equal(deg, rad)
+    inside = pd > -180.0
+    np.testing.assert_array_equal(deg[inside], merl_flat_index(th, td, pd)[inside])
+    # Conversion does move some integer degrees below their edge (θd = k° → bin k − 1).
+    assert ((deg // 180) % 90 != np.minimum(td, 89)).any()
+
+
+def test_retro_reflection_is_theta_d_bin_zero_never_nan():
+    # θi = θr, Δφ = 0: d_z may round just past 1, where acos is NaN; the reference's (int) cast
+    # reads NaN as bin 0, which is where acos(1) = 0 puts it: the sample is kept.
+    t = np.arange(90.0)
+    th, td, _ = halfdiff_from_angles(t, t, 0.0)
+    assert np.isfinite(td).all() and (td < 1e-5).all()
+    np.testing.assert_allclose(th, t, atol=1e-9)
+    for backend in ("numba", "numpy"):
+        table = MerlTable(backend=backend)
+        assert table.add_angles(t, t, 0.0, np.ones((90, 3))) == 90
+        assert table.count[:, 0, :].sum() == 90 and table.n_dropped_nan == 0

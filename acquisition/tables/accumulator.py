@@ -1,8 +1,10 @@
 """Streaming per-bin statistics: count, sum and sum of squares per channel.
 
 A session never holds all its samples: each batch is reduced into the three running arrays and
-then dropped. Accumulation is a sum, so the result is the same (up to float rounding) whatever
-the batch order or split, and two accumulators merge by adding their arrays.
+then dropped. Both backends add the samples one by one in sample order (``np.add.at``, or the
+numba loop), each x² rounded once before it is added, so a table is bit-identical whatever the
+backend and however the samples were split into batches; another sample order changes the sums
+by rounding only. Two accumulators merge by adding their arrays.
 """
 
 from __future__ import annotations
@@ -113,9 +115,10 @@ class BinAccumulator:
     def _accumulate(self, idx: np.ndarray, vals: np.ndarray) -> None:
         """Add in-range, finite samples (no checks).
 
-        ``np.add.at`` (unbuffered scatter-add) rather than ``np.bincount``: same speed per
-        sample, without allocating a table-sized result per call, so small batches into the
-        1.46 M-bin MERL table stay cheap.
+        ``np.add.at`` (unbuffered scatter-add, in sample order) rather than ``np.bincount``:
+        same speed per sample, without allocating a table-sized result per call, so small
+        batches into the 1.46 M-bin MERL table stay cheap; and the sums are those of the numba
+        loop, bit for bit, whatever the batch split (bincount's would depend on it).
         """
         np.add.at(self._count, idx, 1)
         # Channel-first contiguous copy: add.at is ~2.5x faster on contiguous weights. Always a

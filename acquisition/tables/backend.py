@@ -1,9 +1,15 @@
 """Choice of the binning implementation: compiled numba kernels or the pure numpy path.
 
-Both give the same bins and counts and the same sums up to float rounding (see
-:mod:`acquisition.tables.kernels`). ``numba`` is the default and about 2–4× faster; ``numpy``
-is kept as the reference fallback. Pick one per table (``backend=`` argument) or for the
-process with the environment variable ``GONIO_BINNING_BACKEND=numpy|numba``.
+Both give bit-identical tables: the same bin for every sample (the MERL reference reader's,
+computed with libm's sin/cos/acos/atan2 in IEEE double, see :mod:`acquisition.geometry.halfdiff`), the
+same counts, sums and sums of squares (added in sample order) and the same drop tallies, on any
+CPU and whatever the batch split (see :mod:`acquisition.tables.kernels`). ``numba`` is the
+default and 1.4–4× faster (``bench/binning.py``); ``numpy`` is the reference fallback. Pick
+one per table (``backend=`` argument) or for the process with the environment variable
+``GONIO_BINNING_BACKEND=numpy|numba``.
+
+Importing this module sets ``NUMBA_DISABLE_INTEL_SVML=1`` in the environment, so that numba,
+whoever imports it later in this process (or its children), keeps libm's math functions.
 """
 
 from __future__ import annotations
@@ -14,6 +20,8 @@ from types import ModuleType
 from drivers.errors import ConfigError
 
 ENV_VAR = "GONIO_BINNING_BACKEND"
+SVML_ENV_VAR = "NUMBA_DISABLE_INTEL_SVML"
+os.environ[SVML_ENV_VAR] = "1"  # numba reads it when imported: no SVML in place of libm
 BACKENDS = ("numba", "numpy")
 
 _kernels: ModuleType | None = None

@@ -68,11 +68,21 @@ def axis_index(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
 class IsotropicTable(TableStatistics):
     """Streaming isotropic BRDF table binned over (θi, θr, Δφ) in degrees.
 
+    Edge rule, the same bit for bit in both backends (IEEE double, no tolerance):
+
+    * Δφ is first brought into the table's range: folded, d = Δφ mod 360 (floor modulo as
+      numpy's ``np.mod`` and Python's ``%``: d ∈ [0, 360), −0 → +0, rounding can give 360 for
+      a tiny negative Δφ), then 360 − d where d > 180, so −180, 180 and 540 all give 180 and
+      360 gives 0; wrapped, d = e₀ + (Δφ − e₀) mod 360;
+    * each angle v falls in bin k when e_k ≤ v < e_{k+1}, and in the last bin when v equals
+      the last edge; below the first edge or above the last it is out of range;
+    * NaN in any angle drops the sample as NaN; ±inf is out of range.
+
     Parameters
     ----------
     theta_i_edges, theta_r_edges, delta_phi_edges
         Strictly increasing bin edges, degrees. Bins are half-open [e_k, e_k+1) except the last,
-        which includes its upper edge (so θ = 90° or Δφ = 180° lands in the last bin).
+        which includes its upper edge (so θ = 90° or a folded Δφ = 180° lands in the last bin).
     fold_delta_phi
         Fold Δφ into [0, 180] before binning (isotropy: f(Δφ) = f(−Δφ)). ``None`` (default)
         folds when the Δφ edges span at most 270° (a half turn such as [0, 180] or
@@ -81,7 +91,7 @@ class IsotropicTable(TableStatistics):
         Free metadata (JSON-serialisable) saved with the table.
     backend
         ``"numba"`` (fused compiled index + accumulation) or ``"numpy"``; default from
-        ``$GONIO_BINNING_BACKEND``, else numba. Both give the same bins.
+        ``$GONIO_BINNING_BACKEND``, else numba. Both give bit-identical tables.
     """
 
     def __init__(
@@ -132,7 +142,8 @@ class IsotropicTable(TableStatistics):
         theta_r_deg: np.ndarray | float,
         delta_phi_deg: np.ndarray | float,
     ) -> np.ndarray:
-        """Flat C-order bin index per sample; −1 outside the table, −2 for a NaN angle."""
+        """Flat C-order bin index per sample (the class's edge rule); −1 outside the table,
+        −2 for a NaN angle. What :meth:`add` bins, with either backend."""
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)

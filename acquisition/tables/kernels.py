@@ -2,11 +2,23 @@
 
 Each kernel walks the samples in blocks of :data:`BLOCK`: it computes the block's flat bin
 indices into a small buffer (for (θh, θd, φd) given directly, a branch-free loop that LLVM
-vectorises), then adds 1 to the count and x, x² to the sums of every channel. The index uses
-exactly the arithmetic of the numpy path (same operations in the same order, no fast-math), so
-bins are the same, up to the case where numba's libm and numpy differ in the last bit of an
-inverse trigonometric result for a sample within rounding of a bin edge (none seen on x86-64
-Linux, where both call glibc). Sums are added in sample order, as ``np.add.at`` does.
+vectorises), then adds 1 to the count and x, x² to the sums of every channel, in sample order.
+
+Bins are the reference reader's, bit for bit: the index uses the reference's arithmetic in IEEE
+double, operation for operation as :mod:`acquisition.geometry.halfdiff`, with ``math.sin``/``cos``/
+``acos``/``atan2``/``sqrt`` compiled to calls of the process's libm (what ``math`` and the C
+reader call). Nothing may change that arithmetic, and this module enforces it:
+
+* no fast-math (``fastmath=False``): no reassociation, no FMA contraction (LLVM fuses a
+  multiply and an add only when flagged, and numba flags nothing without fast-math);
+* no Intel SVML: with the ``icc_rt`` / intel-cmplr-lib-rt package installed numba lets LLVM
+  replace libm calls in vectorised loops by SVML's (a few ulp away). This module sets
+  ``NUMBA_DISABLE_INTEL_SVML=1`` before importing numba and refuses to load if numba was
+  already imported with SVML in use (that LLVM option cannot be undone in the process).
+
+So the numba and numpy backends give the same bins, the same counts, sums and sums of squares
+(added in the same order, each x² rounded once) and the same drop tallies, bit for bit, on any
+x86-64 CPU and whatever the batch split.
 
 Arrays are passed as the accumulator holds them: ``count`` int64 (bins,), ``sums`` and
 ``sumsq`` float64 (channels, bins). Every kernel returns ``(kept, n_nan, n_range)``.
@@ -20,20 +32,32 @@ the compile time.
 from __future__ import annotations
 
 import math
+import os
 
-import numpy as np
-from numba import njit
+os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # read when numba is imported (just below)
 
-from acquisition.geometry.halfdiff import PHI_D_BINS, THETA_D_BINS, THETA_H_BINS
-from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import njit  # noqa: E402
+
+from acquisition.geometry.halfdiff import DEG2RAD, PHI_D_BINS, THETA_D_BINS, THETA_H_BINS  # noqa: E402
+from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE  # noqa: E402
+
+if numba.config.USING_SVML:  # pragma: no cover - only with icc_rt and numba imported earlier
+    raise ImportError(
+        "numba was imported with Intel SVML enabled before acquisition.tables.kernels, so its "
+        "kernels would not reproduce libm's bins; set NUMBA_DISABLE_INTEL_SVML=1 in the "
+        "environment (or import acquisition.tables first), or use GONIO_BINNING_BACKEND=numpy"
+    )
 
 _HALF_PI = np.pi / 2.0
-_DEG2RAD = np.pi / 180.0  # np.radians(x) is x * (π / 180)
+_DEG2RAD = DEG2RAD  # np.radians(x) is x * (π / 180)
 _NH = float(THETA_H_BINS)
 _ND = float(THETA_D_BINS)
 _NP = float(PHI_D_BINS)
 
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}  # x/0 → inf/NaN, no raise
+# Every kernel: exact IEEE arithmetic (no fast-math); x/0 → inf/NaN rather than an exception.
+_JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
 # ---------------------------------------------------------------------------- accumulation
@@ -159,6 +183,12 @@ def _merl_flat_rad(th, td, pd):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
+def _clip1(x):  # pragma: no cover - compiled
+    """``x`` clipped into [−1, 1] for acos; NaN stays NaN."""
+    return 1.0 if x > 1.0 else (-1.0 if x < -1.0 else x)
+
+
+@njit(**_JIT)
 def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
     """(θh, θd, φd) in radians, operation for operation as
     :func:`acquisition.geometry.halfdiff.halfdiff_rad_from_vectors`."""
@@ -168,10 +198,8 @@ def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
     rho2 = hx * hx + hy * hy
     norm = math.sqrt(hz * hz + rho2)
     a = ix * hx + iy * hy
-    cos_h = hz / norm
-    cos_d = (iz * hz + a) / norm
-    cos_h = 1.0 if cos_h > 1.0 else (-1.0 if cos_h < -1.0 else cos_h)
-    cos_d = 1.0 if cos_d > 1.0 else (-1.0 if cos_d < -1.0 else cos_d)
+    cos_h = _clip1(hz / norm)
+    cos_d = _clip1((iz * hz + a) / norm)
     if rho2 == 0.0:
         phi_d = math.atan2(iy, ix * cos_h)
     else:
@@ -211,7 +239,8 @@ def _rotate(v0, v1, v2, a0, a1, a2, angle):  # pragma: no cover - compiled
 @njit(**_JIT)
 def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
     """Flat MERL index for isotropic (θi, θr, Δφ) in degrees, light at azimuth 0, operation
-    for operation as :func:`acquisition.geometry.halfdiff.halfdiff_rad_reference`; θi or θr outside
+    for operation as :func:`acquisition.geometry.halfdiff.halfdiff_rad_reference` (the reference's
+    ``std_coords_to_half_diff_coords``, acos arguments clipped into [−1, 1]); θi or θr outside
     [0°, 90°] gives −1 (unless NaN, −2)."""
     ti = ti_deg * _DEG2RAD
     to = tr_deg * _DEG2RAD
@@ -231,12 +260,11 @@ def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
     hy = (iy + oy) / 2.0
     hz = (iz + oz) / 2.0
     n_h = math.sqrt(hx * hx + hy * hy + hz * hz)
-    c = hz / n_h
-    theta_h = math.acos(c) if -1.0 <= c <= 1.0 else math.nan
+    theta_h = math.acos(_clip1(hz / n_h))
     phi_h = math.atan2(hy / n_h, hx / n_h)
     tx, ty, tz = _rotate(nx, ny, nz, 0.0, 0.0, 1.0, -phi_h)
     dx, dy, dz = _rotate(tx, ty, tz, 0.0, 1.0, 0.0, -theta_h)
-    theta_d = math.acos(dz) if -1.0 <= dz <= 1.0 else math.nan
+    theta_d = math.acos(_clip1(dz))  # d_z may round past 1 where θd ≈ 0: bin 0, as the reference
     phi_d = math.atan2(dy, dx)
     b = _merl_flat_rad(theta_h, theta_d, phi_d)
     if b != DROP_NAN and not (0.0 <= ti_deg <= 90.0 and 0.0 <= tr_deg <= 90.0):
@@ -325,6 +353,8 @@ def _axis_index(v, edges):  # pragma: no cover - compiled
 
 @njit(**_JIT)
 def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compiled
+    """Flat isotropic index, the edge rule of :class:`~acquisition.tables.IsotropicTable`
+    (numba's float ``%`` is numpy's ``np.mod``: fmod, then + 360 when the signs differ)."""
     if math.isnan(ti) or math.isnan(tr) or math.isnan(dp):
         return DROP_NAN
     if fold:

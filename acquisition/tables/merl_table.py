@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.geometry.halfdiff import (
+    DEG2RAD,
     MERL_SHAPE,
     NAN_INDEX,
     OUT_OF_RANGE_INDEX,
@@ -38,10 +39,11 @@ assert (NAN_INDEX, OUT_OF_RANGE_INDEX) == (DROP_NAN, DROP_OUT_OF_RANGE)
 class MerlTable(TableStatistics):
     """Streaming BRDF table on the MERL grid (θh square-root spaced, θd, φd folded by 180°).
 
-    Bins are those of the MERL reference reader (see :mod:`acquisition.geometry.halfdiff`); a sample
-    lands in the bin the reference lookup would read for its directions. Samples with a
-    direction at or below the horizon, or θh/θd outside [0°, 90°], are dropped as out of range;
-    samples with NaN as NaN.
+    Bins are those of the MERL reference reader (see :mod:`acquisition.geometry.halfdiff`): a sample
+    lands in the bin the reference lookup (libm arithmetic in IEEE double) reads for its
+    angles, exact bin edges included, on any CPU. Samples with a direction at or below the
+    horizon, or θh/θd outside [0°, 90°], are dropped as out of range; samples with NaN as NaN.
+    ``flat_index_*`` give the bin of each sample without binning it.
 
     Parameters
     ----------
@@ -49,8 +51,8 @@ class MerlTable(TableStatistics):
         Free metadata kept with the table (exported by the callers that write files).
     backend
         ``"numba"`` (fused compiled index + accumulation) or ``"numpy"``; default from
-        ``$GONIO_BINNING_BACKEND``, else numba. Both give the same bins (the numba kernels
-        repeat the numpy arithmetic operation for operation).
+        ``$GONIO_BINNING_BACKEND``, else numba. Both give bit-identical tables whatever the
+        batch split (same bins, counts, sums, sums of squares and drop tallies).
     """
 
     shape = MERL_SHAPE
@@ -67,25 +69,11 @@ class MerlTable(TableStatistics):
 
         ``rgb`` (N, 3) is the BRDF in sr⁻¹. Returns the number of samples kept.
         """
-        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
-        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        wi, wo = _as_vectors(wi, wo)
         rgb = _as_rgb(rgb, wi.shape[0])
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_vectors, wi, wo, rgb)
-
-        def fill(a: int, b: int, flat: np.ndarray) -> bool:
-            i, o = wi[a:b], wo[a:b]
-            th, td, pd = halfdiff_rad_from_vectors(i, o)
-            valid = flat_index_unclamped_into(th, td, pd, flat, np.pi)
-            if not (i[:, 2].min() > 0.0 and o[:, 2].min() > 0.0):  # False on NaN too
-                valid = False
-                below = (i[:, 2] <= 0.0) | (o[:, 2] <= 0.0)
-                given_nan = np.isnan(i).any(axis=1) | np.isnan(o).any(axis=1)
-                # wi = −wo has no half vector (NaN angles): still below the horizon.
-                flat[below & ~given_nan] = DROP_OUT_OF_RANGE
-            return valid
-
-        return self._add_chunked(rgb, fill)
+        return self._add_chunked(rgb, lambda a, b, flat: _index_vectors(wi[a:b], wo[a:b], flat))
 
     def add_angles(
         self,
@@ -96,27 +84,18 @@ class MerlTable(TableStatistics):
     ) -> int:
         """Bin samples at isotropic (θi, θr, Δφ) in degrees (light at azimuth 0).
 
-        Uses the reference reader's own angle conversion, so each sample lands exactly where
-        the reference lookup at the same angles reads. θi or θr outside [0°, 90°] is dropped.
-        Returns the number kept.
+        Uses the reference reader's own angle conversion with libm's arithmetic, so each
+        sample lands exactly where the reference lookup at the same angles reads (exact bin
+        edges and in-plane poses included). θi or θr outside [0°, 90°] is dropped. Returns the
+        number kept.
         """
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         rgb = _as_rgb(rgb, ti.size)
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_angles, ti, tr, dp, rgb)
-
-        def fill(a: int, b: int, flat: np.ndarray) -> bool:
-            x, y = ti[a:b], tr[a:b]
-            th, td, pd = halfdiff_rad_reference(
-                np.radians(x), 0.0, np.radians(y), np.radians(dp[a:b])
-            )
-            flat_index_unclamped_into(th, td, pd, flat, np.pi)
-            with np.errstate(invalid="ignore"):
-                outside = (x < 0.0) | (x > 90.0) | (y < 0.0) | (y > 90.0)
-            flat[outside & (flat != DROP_NAN)] = DROP_OUT_OF_RANGE
-            return False
-
-        return self._add_chunked(rgb, fill)
+        return self._add_chunked(
+            rgb, lambda a, b, flat: _index_angles(ti[a:b], tr[a:b], dp[a:b], flat)
+        )
 
     def add_halfdiff(
         self,
@@ -136,13 +115,9 @@ class MerlTable(TableStatistics):
         rgb = _as_rgb(rgb, th.size)
         if self.backend == "numba":
             return self._acc.add_with(kernels().merl_add_halfdiff_deg, th, td, pd, rgb)
-
-        def fill(a: int, b: int, flat: np.ndarray) -> bool:
-            return flat_index_unclamped_into(
-                np.radians(th[a:b]), np.radians(td[a:b]), np.radians(pd[a:b]), flat, np.pi
-            )
-
-        return self._add_chunked(rgb, fill)
+        return self._add_chunked(
+            rgb, lambda a, b, flat: _index_halfdiff(th[a:b], td[a:b], pd[a:b], flat)
+        )
 
     def _add_chunked(self, rgb: np.ndarray, fill: Callable[[int, int, np.ndarray], bool]) -> int:
         """numpy path: per chunk [a, b), ``fill(a, b, flat)`` writes the flat indices and says
@@ -156,6 +131,45 @@ class MerlTable(TableStatistics):
             valid = fill(a, b, flat)
             kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
         return kept
+
+    # ------------------------------------------------------------------ bin of each sample
+    def flat_index_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        """Flat bin index per light/view pair, as :meth:`add_vectors` bins it with this
+        table's backend: −1 out of range (or below the horizon), −2 NaN."""
+        wi, wo = _as_vectors(wi, wo)
+        if self.backend == "numba":
+            out = np.empty(wi.shape[0], dtype=np.int64)
+            kernels().merl_flat_index_vectors(*map(np.ascontiguousarray, (wi, wo)), out)
+            return out
+        return _index_chunked(wi.shape[0], lambda a, b, f: _index_vectors(wi[a:b], wo[a:b], f))
+
+    def flat_index_angles(
+        self,
+        theta_i_deg: np.ndarray | float,
+        theta_r_deg: np.ndarray | float,
+        delta_phi_deg: np.ndarray | float,
+    ) -> np.ndarray:
+        """Flat bin index per (θi, θr, Δφ) in degrees, as :meth:`add_angles` bins it."""
+        ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
+        if self.backend == "numba":
+            out = np.empty(ti.size, dtype=np.int64)
+            kernels().merl_flat_index_angles(*map(np.ascontiguousarray, (ti, tr, dp)), out)
+            return out
+        return _index_chunked(ti.size, lambda a, b, f: _index_angles(ti[a:b], tr[a:b], dp[a:b], f))
+
+    def flat_index_halfdiff(
+        self,
+        theta_h_deg: np.ndarray | float,
+        theta_d_deg: np.ndarray | float,
+        phi_d_deg: np.ndarray | float,
+    ) -> np.ndarray:
+        """Flat bin index per (θh, θd, φd) in degrees, as :meth:`add_halfdiff` bins it."""
+        th, td, pd = as_flat_float64(theta_h_deg, theta_d_deg, phi_d_deg)
+        if self.backend == "numba":
+            out = np.empty(th.size, dtype=np.int64)
+            kernels().merl_flat_index_deg(*map(np.ascontiguousarray, (th, td, pd)), out)
+            return out
+        return _index_chunked(th.size, lambda a, b, f: _index_halfdiff(th[a:b], td[a:b], pd[a:b], f))
 
     def add_flat(self, flat_index: np.ndarray, rgb: np.ndarray) -> int:
         """Bin samples by precomputed flat MERL index (negative = drop). Returns the number kept."""
@@ -200,6 +214,50 @@ class MerlTable(TableStatistics):
     def bin_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Nominal (lower-edge) bin angles (θh, θd, φd) in degrees, as MERL tabulates."""
         return merl_bin_angles()
+
+
+# ---------------------------------------------------------------------------- numpy backend
+def _index_vectors(wi: np.ndarray, wo: np.ndarray, flat: np.ndarray) -> bool:
+    """Flat indices of light/view pairs into ``flat``; True when all are known valid."""
+    th, td, pd = halfdiff_rad_from_vectors(wi, wo)
+    valid = flat_index_unclamped_into(th, td, pd, flat)
+    if not (wi[:, 2].min() > 0.0 and wo[:, 2].min() > 0.0):  # False on NaN too
+        valid = False
+        below = (wi[:, 2] <= 0.0) | (wo[:, 2] <= 0.0)
+        given_nan = np.isnan(wi).any(axis=1) | np.isnan(wo).any(axis=1)
+        # wi = −wo has no half vector (NaN angles): still below the horizon.
+        flat[below & ~given_nan] = DROP_OUT_OF_RANGE
+    return valid
+
+
+def _index_angles(ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, flat: np.ndarray) -> bool:
+    """Flat indices of (θi, θr, Δφ) in degrees into ``flat``; returns False (not checked)."""
+    th, td, pd = halfdiff_rad_reference(ti * DEG2RAD, 0.0, tr * DEG2RAD, dp * DEG2RAD)
+    flat_index_unclamped_into(th, td, pd, flat)
+    with np.errstate(invalid="ignore"):
+        outside = (ti < 0.0) | (ti > 90.0) | (tr < 0.0) | (tr > 90.0)
+    flat[outside & (flat != DROP_NAN)] = DROP_OUT_OF_RANGE
+    return False
+
+
+def _index_halfdiff(th: np.ndarray, td: np.ndarray, pd: np.ndarray, flat: np.ndarray) -> bool:
+    """Flat indices of (θh, θd, φd) in degrees into ``flat``; True when all are valid."""
+    return flat_index_unclamped_into(th, td, pd, flat, 180.0)
+
+
+def _index_chunked(n: int, fill: Callable[[int, int, np.ndarray], bool]) -> np.ndarray:
+    out = np.empty(n, dtype=np.int64)
+    for a in range(0, n, CHUNK):
+        b = min(a + CHUNK, n)
+        fill(a, b, out[a:b])
+    return out
+
+
+def _as_vectors(wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.asarray(wi, dtype=np.float64).reshape(-1, 3),
+        np.asarray(wo, dtype=np.float64).reshape(-1, 3),
+    )
 
 
 def _as_rgb(rgb: np.ndarray, n: int) -> np.ndarray:

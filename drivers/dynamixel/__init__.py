@@ -11,6 +11,7 @@ from drivers.dynamixel.bus import (
     Addr,
     MotionSample,
     ServoBus,
+    ServoLinkStats,
     ServoStatus,
 )
 from drivers.dynamixel.codes import (
@@ -32,6 +33,6 @@ __all__ = [
     "COMMON_BAUD_RATES", "SDK_BAUD_RATES", "Addr", "Axis", "ElectricalShockError",
     "EncoderError", "InputVoltageError", "MotionController", "MotionSample",
     "MotionTimeoutError", "OverheatingError", "OverloadError", "ServoBus",
-    "ServoCommandError", "ServoHardwareError", "ServoSilentError", "ServoStatus",
+    "ServoCommandError", "ServoHardwareError", "ServoLinkStats", "ServoSilentError", "ServoStatus",
     "TorqueOffError", "latency_timer_ms", "latency_warning",
 ]

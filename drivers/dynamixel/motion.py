@@ -8,14 +8,21 @@
    nothing sent);
 3. torque and latched hardware errors are checked (one sync read per bus);
 4. ONE sync write per bus sends all goals;
-5. one sync read per bus and control cycle polls goal, moving and present position until every
-   axis is within ``tolerance_ticks`` of its goal with ``moving == 0`` — the move is confirmed by
-   readback, never by acknowledgement; a goal that reads back different is sent once more, and
-   if the servo still holds another value (its EEPROM position limits clamp it) the move stops
-   with a :class:`~drivers.errors.LimitError`;
-6. on a hardware error, a timeout or Ctrl-C, all axes stop at once (goal := present, torque
-   stays on) before the error propagates; :meth:`MotionController.stop` called from another
-   thread ends an in-flight move with :class:`~drivers.errors.SafetyStop`.
+5. one sync read per bus and control cycle polls goal, moving and present position (116–135,
+   so the goal read-back costs no extra round trip) until every axis is within
+   ``tolerance_ticks`` of its goal with ``moving == 0`` — the move is confirmed by readback,
+   never by acknowledgement. A goal that reads back different never arrived (a sync write has
+   no reply, so a lost or garbled one is silent): it is resent, by sync write up to
+   ``goal_resends - 1`` times, then once by an acknowledged WRITE, whose status packet proves
+   arrival. A servo that acknowledged and still holds another value clamps it (its EEPROM
+   position limits): :class:`~drivers.errors.LimitError`. One whose acknowledged write gets no
+   valid answer: :class:`~drivers.errors.CommunicationError` naming axis and port;
+6. on a hardware error, a timeout or Ctrl-C, all axes stop at once (goal := braking point,
+   torque stays on; the stop goals are read back and a lost one is written again, acknowledged)
+   before the error propagates; :meth:`MotionController.stop` called from another thread ends
+   an in-flight move with :class:`~drivers.errors.SafetyStop`.
+
+Resends and retries are counted per axis (:meth:`MotionController.link_stats`).
 """
 
 from __future__ import annotations
@@ -26,9 +33,9 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 
 from drivers.dynamixel.axis import Axis
-from drivers.dynamixel.bus import Addr, ServoBus
-from drivers.dynamixel.codes import MotionTimeoutError, TorqueOffError
-from drivers.errors import ConfigError, GonioError, LimitError, SafetyStop
+from drivers.dynamixel.bus import Addr, ServoBus, ServoLinkStats
+from drivers.dynamixel.codes import MotionTimeoutError, ServoSilentError, TorqueOffError
+from drivers.errors import CommunicationError, ConfigError, GonioError, LimitError, SafetyStop
 
 Guard = Callable[[Mapping[str, float]], object]
 
@@ -53,6 +60,9 @@ class MotionController:
         Pause function for polling (``time.sleep``; a simulated clock's may be given).
     monotonic:
         Clock for timeouts (host s).
+    goal_resends:
+        Resends of a goal that reads back different before giving up (≥ 1): the last one is an
+        acknowledged WRITE, the others sync writes.
     """
 
     def __init__(
@@ -65,6 +75,7 @@ class MotionController:
         poll_s: float = 0.01,
         sleep: Callable[[float], None] = time.sleep,
         monotonic: Callable[[], float] = time.monotonic,
+        goal_resends: int = 3,
     ) -> None:
         if guard is None or not callable(guard):
             raise ConfigError(
@@ -90,6 +101,9 @@ class MotionController:
                                   f"{axis.servo_id} on the same bus")
             seen[key] = name
             self._bus[name].label(axis.servo_id, name)
+        if goal_resends < 1:
+            raise ConfigError(f"goal_resends must be >= 1, got {goal_resends}")
+        self.goal_resends = goal_resends
         self.guard = guard
         self._stops = 0  # bumped by stop(): an in-flight move_to ends with SafetyStop
         # Held by stop() and around every goal write of move_to, so that a move never re-sends
@@ -122,6 +136,16 @@ class MotionController:
         """Torque on/off for the named axes (all if None)."""
         for bus, group in self._groups(names or self._axes).items():
             bus.set_torque([self._axes[n].servo_id for n in group], on)
+
+    def link_stats(self) -> dict[str, ServoLinkStats]:
+        """``{axis: ServoLinkStats}``: requests, retries and goal resends of each axis' servo."""
+        stats: dict[int, dict[int, ServoLinkStats]] = {}
+        out = {}
+        for name, axis in self._axes.items():
+            bus = self._bus[name]
+            per_servo = stats.setdefault(id(bus), bus.servo_stats())
+            out[name] = per_servo.get(axis.servo_id, ServoLinkStats())
+        return out
 
     def positions_deg(self, names: Iterable[str] | None = None) -> dict[str, float]:
         """Read-back positions (deg), one sync read per bus."""
@@ -187,7 +211,7 @@ class MotionController:
     def _settle(self, groups: Mapping[ServoBus, list[str]], goals: Mapping[str, int],
                 timeout_s: float, generation: int) -> dict[str, float]:
         deadline = self._monotonic() + timeout_s
-        resent: set[str] = set()
+        resent: dict[str, int] = {}
         tol = self.tolerance_ticks
         while True:
             self._check_generation(generation, goals)
@@ -197,27 +221,33 @@ class MotionController:
             for bus, names in groups.items():
                 samples = bus.read_motion([self._axes[n].servo_id for n in names])
                 again: dict[int, int] = {}
+                acknowledged: dict[int, int] = {}
                 for n in names:
                     axis, s = self._axes[n], samples[self._axes[n].servo_id]
                     readback[n] = s.position
                     if s.goal != goals[n]:
-                        if n in resent:
+                        sent = resent.get(n, 0)
+                        if sent >= self.goal_resends:
                             raise LimitError(
                                 f"{bus.describe(axis.servo_id)}: the servo holds goal {s.goal} "
-                                f"instead of {goals[n]} ticks; its Min/Max Position Limit "
-                                f"(EEPROM 52/48) clamps it — widen them or narrow the axis "
-                                f"limits in the rig file"
+                                f"instead of {goals[n]} ticks although it acknowledged the "
+                                f"write; its Min/Max Position Limit (EEPROM 52/48) clamps it — "
+                                f"widen them or narrow the axis limits in the rig file"
                             )
-                        again[axis.servo_id] = goals[n]
-                        resent.add(n)
+                        resent[n] = sent + 1
+                        last = sent + 1 == self.goal_resends
+                        (acknowledged if last else again)[axis.servo_id] = goals[n]
                     if s.moving or abs(s.position - goals[n]) > tol:
                         done = False
                         lagging.append(f"{n} at {axis.ticks_to_deg(s.position):.2f}° "
                                        f"(goal {axis.ticks_to_deg(goals[n]):.2f}°)")
-                if again:
+                if again or acknowledged:
                     with self._goal_lock:
                         self._check_generation(generation, goals)
-                        bus.write_goals(again)
+                        if again:
+                            bus.resend_goals(again)
+                        for sid, goal in acknowledged.items():
+                            self._write_goal_acknowledged(bus, sid, goal)
                     done = False
             if done:
                 return {n: self._axes[n].ticks_to_deg(t) for n, t in readback.items()}
@@ -227,6 +257,17 @@ class MotionController:
                     f"stopped — check for an obstruction, or raise the profile velocity"
                 )
             self._sleep(self.poll_s)
+
+    def _write_goal_acknowledged(self, bus: ServoBus, servo_id: int, goal: int) -> None:
+        try:
+            bus.write_goal(servo_id, goal, resend=True)
+        except ServoSilentError:
+            raise CommunicationError(
+                f"{bus.describe(servo_id)}: the goal write ({goal} ticks) never arrived: "
+                f"{self.goal_resends} sync writes lost and the acknowledged write got no valid "
+                f"answer after {bus.retries + 1} attempts; check the bus cable, termination and "
+                f"power (`gonio info` shows each axis' retries); all axes stopped"
+            ) from None
 
     def _check_generation(self, generation: int, goals: Mapping[str, int]) -> None:
         if self._stops != generation:
@@ -279,6 +320,14 @@ class MotionController:
         for bus, ticks in goals.items():
             try:
                 bus.write_goals(ticks)
+            except GonioError as exc:
+                errors.append(exc)
+        for bus, ticks in goals.items():
+            try:  # a sync write has no reply: read the stop goals back, rewrite any lost one
+                held = bus.sync_read(ticks, Addr.GOAL_POSITION, 4, check_alert=False)
+                for sid, goal in ticks.items():
+                    if int.from_bytes(held[sid], "little", signed=True) != goal:
+                        bus.write_goal(sid, goal, resend=True)
             except GonioError as exc:
                 errors.append(exc)
         if errors:

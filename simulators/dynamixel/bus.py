@@ -10,6 +10,18 @@ wake-up pipe, so shutting down costs microseconds, not a polling timeout.
 A new instruction cancels replies still waiting to be sent (the master has moved on), so a reply
 delayed past the client's timeout never lands in the next transaction.
 
+Solid parts (optional): given a :class:`~simulators.rig_solids.SolidRig`, the bus builds a
+:class:`~simulators.dynamixel.world.SolidWorld` over its servos, so arms that touch stall and
+trip on overload; :meth:`SimServoBus.sim_collisions` lists the contacts. Without it the bus is
+bare: servos that never meet anything. Buses of one rig that share a world are built with one
+``lock`` and attached with :meth:`SimServoBus.sim_attach_world`
+(:mod:`simulators.dynamixel.rig` does that).
+
+Faults: the specs of :mod:`simulators.dynamixel.faults` on status and instruction packets, and
+scripted one-shot losses (:meth:`SimServoBus.sim_drop_next`) for deterministic tests. The bus
+reports through return values, counters (``stats``, ``instructions``, ``wire_stats``) and
+:mod:`logging`, never by printing; :mod:`simulators.dynamixel.serve` runs it in the foreground.
+
 Wire time (``wire_time``): off by default (fast tests). ``"host"`` (or ``True``) delays each
 reply in host time by the instruction's and the reply's bytes on the wire, for clients on a
 real-time or scaled clock. ``"clock"`` charges them to the shared simulated clock instead, for
@@ -30,14 +42,13 @@ import contextlib
 import os
 import random
 import select
-import signal
-import sys
 import termios
 import threading
 import time
 import tty
 from collections import Counter, deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Literal
 
 from drivers.errors import ConfigError
@@ -47,6 +58,8 @@ from simulators.dynamixel.faults import Fault, WireFaults, parse_faults, wire_fa
 from simulators.dynamixel.protocol import Instruction, Packet, PacketParser
 from simulators.dynamixel.responder import Responder
 from simulators.dynamixel.servo import SimServo
+from simulators.dynamixel.world import DEFAULT_TICK_S, Collision, SolidWorld
+from simulators.rig_solids import SolidRig
 
 #: A partial packet older than this (host s) is discarded when new bytes arrive.
 _PARTIAL_TIMEOUT_S = 0.1
@@ -67,6 +80,16 @@ WireTime = Literal["host", "clock"]
 
 #: Bytes of a Protocol 2.0 packet besides its parameters (header 4, ID, length 2, instr., CRC 2).
 _PACKET_OVERHEAD = 10
+
+
+@dataclass
+class _ScriptedLoss:
+    """Lose the next ``count`` instructions named in ``names`` (None: any) to one servo."""
+
+    servo_id: int
+    names: frozenset[str] | None
+    count: int
+    corrupt: bool
 
 
 def _wire_time_mode(wire_time: bool | str | None) -> WireTime | None:
@@ -109,16 +132,33 @@ class SimServoBus:
         Refuse fault specs naming an ID that is not on this bus. Off by default, so that a rig
         with several buses can hand the same spec list to each; check the IDs against the
         whole rig instead.
+    solids:
+        The rig's solid parts; every joint that moves an arm must be driven by a servo of this
+        bus (its ``servo_id``). None: a bare bus.
+    stall_trip_s:
+        Simulated seconds a servo pushes against an obstruction or a contact before it trips on
+        overload (the X-series takes about a second).
+    physics_tick_s:
+        Physics tick of the solid world (simulated s).
+    lock:
+        Lock shared with other buses of the same solid world (one is made if None).
 
     Attributes
     ----------
     servos:
         ``{id: SimServo}`` keyed by the ID each servo was created with.
     stats:
-        Counters: ``packets`` received, ``replies`` sent, ``dropped``, ``corrupted``,
+        Counters: ``packets`` received, ``replies`` sent, ``dropped``, ``corrupted`` (status
+        packets), ``instructions_dropped``, ``instructions_corrupted`` (per addressed servo),
         ``cancelled`` (replies pre-empted by a newer instruction), ``overflow``.
     instructions:
         Instructions received, by name (``"SYNC_WRITE"``, ``"READ"``, ...).
+    wire_stats:
+        ``{id: Counter}`` of injected faults per servo, keyed by ``(direction, fault,
+        instruction)``, e.g. ``("instruction", "dropped", "SYNC_WRITE")`` or
+        ``("status", "corrupted", "SYNC_READ")``.
+    world:
+        The solid world, or None on a bare bus.
     """
 
     def __init__(
@@ -133,6 +173,10 @@ class SimServoBus:
         positions: Mapping[int, float] | None = None,
         wire_time: bool | WireTime = False,
         strict_fault_ids: bool = False,
+        solids: SolidRig | None = None,
+        stall_trip_s: float = 1.0,
+        physics_tick_s: float = DEFAULT_TICK_S,
+        lock: threading.RLock | None = None,
     ) -> None:
         id_list = [int(i) for i in ids]
         if not id_list:
@@ -157,25 +201,42 @@ class SimServoBus:
         self.strict_baud = strict_baud
         self.wire_time: WireTime | None = _wire_time_mode(wire_time)
         """``"host"``, ``"clock"`` or None (off), see the ``wire_time`` parameter."""
-        self._lock = threading.RLock()
+        if stall_trip_s < 0:
+            raise ConfigError(f"stall_trip_s must be >= 0 s, got {stall_trip_s}")
+        self._lock = lock if lock is not None else threading.RLock()
         self._rng = random.Random(seed)
         positions = positions or {}
         self.servos: dict[int, SimServo] = {
             i: SimServo(
                 i, self.clock, baud_index=_BAUD_INDEX[baud],
                 position_ticks=positions.get(i, 2048.0),
+                stall_trip_s=stall_trip_s,
                 faults=tuple(f for f in self.faults if f.servo_id == i and f.kind not in
                              ("drop", "corrupt", "delay")),
                 lock=self._lock,
             )
             for i in id_list
         }
+        self._id_of = {servo: i for i, servo in self.servos.items()}
         self._wire: dict[SimServo, WireFaults] = {
             servo: wire_faults_for(self.faults, i) for i, servo in self.servos.items()}
         self._responder = Responder(list(self.servos.values()),
                                     self._hears if strict_baud else None)
-        self.stats = dict(packets=0, replies=0, dropped=0, corrupted=0, cancelled=0, overflow=0)
+        self.stats = dict(packets=0, replies=0, dropped=0, corrupted=0, instructions_dropped=0,
+                          instructions_corrupted=0, cancelled=0, overflow=0)
         self.instructions: Counter[str] = Counter()
+        self.wire_stats: dict[int, Counter[tuple[str, str, str]]] = {
+            i: Counter() for i in self.servos}
+        self._scripted: list[_ScriptedLoss] = []
+        self.world: SolidWorld | None = None
+        if solids is not None and solids.arms:
+            by_id = {a.servo_id: name for name, a in solids.axes.items()}
+            joints = {by_id[i]: s for i, s in self.servos.items() if i in by_id}
+            missing = [j for js in solids.arm_axes.values() for j in js if j not in joints]
+            if missing:
+                raise ConfigError(f"solid parts need the servos of axes {missing} on this bus "
+                                  f"(IDs {sorted(self.servos)})")
+            self.world = SolidWorld(solids, joints, tick_s=physics_tick_s)
         self._master = self._slave = self._wake_r = self._wake_w = -1
         self._thread: threading.Thread | None = None
         self._port: str | None = None
@@ -224,6 +285,59 @@ class SimServoBus:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    # ------------------------------------------------------------------ sim-only API
+    def sim_attach_world(self, world: SolidWorld) -> None:
+        """Make ``world`` (built over servos of this and other buses sharing this bus's lock)
+        this bus's solid world, for :meth:`sim_collisions`."""
+        self.world = world
+
+    def sim_collisions(self) -> list[Collision]:
+        """Every contact of the arms so far (oldest first); empty on a bare bus."""
+        with self._lock:
+            if self.world is None:
+                return []
+            self.world.advance(self.clock.now())
+            return list(self.world.collisions)
+
+    def sim_drop_next(self, servo_id: int, instructions: Collection[str] | None = ("SYNC_WRITE",),
+                      count: int = 1, *, corrupt: bool = False) -> None:
+        """Make servo ``servo_id`` miss its next ``count`` instructions named in
+        ``instructions`` (``"SYNC_WRITE"``, ``"WRITE"``, ...; None: any), as if they were
+        dropped on the wire (or, with ``corrupt``, arrived with a bad CRC). Deterministic,
+        unlike the probabilistic fault specs; counted in ``wire_stats`` like them."""
+        if servo_id not in self.servos:
+            raise ConfigError(f"servo {servo_id} is not on this bus ({sorted(self.servos)})")
+        names = None if instructions is None else frozenset(n.upper() for n in instructions)
+        with self._lock:
+            self._scripted.append(_ScriptedLoss(servo_id, names, int(count), corrupt))
+
+    def _instruction_fates(self, pkt: Packet, name: str) -> tuple[set[SimServo], set[SimServo]]:
+        """(deaf, garbled): the addressed servos that lose this instruction."""
+        deaf: set[SimServo] = set()
+        garbled: set[SimServo] = set()
+        for servo in self._responder.addressed(pkt):
+            sid = self._id_of[servo]
+            wf = self._wire[servo]
+            fate = None
+            for loss in self._scripted:
+                if loss.servo_id == sid and loss.count > 0 and (
+                        loss.names is None or name in loss.names):
+                    loss.count -= 1
+                    fate = "corrupted" if loss.corrupt else "dropped"
+                    break
+            if fate is None and wf.instruction_drop and self._rng.random() < wf.instruction_drop:
+                fate = "dropped"
+            if fate is None and wf.instruction_corrupt and (
+                    self._rng.random() < wf.instruction_corrupt):
+                fate = "corrupted"
+            if fate is None:
+                continue
+            (deaf if fate == "dropped" else garbled).add(servo)
+            self.stats[f"instructions_{fate}"] += 1
+            self.wire_stats[sid]["instruction", fate, name] += 1
+        self._scripted = [loss for loss in self._scripted if loss.count > 0]
+        return deaf, garbled
 
     # ------------------------------------------------------------------ loop
     def _hears(self, servo: SimServo) -> bool:
@@ -281,7 +395,8 @@ class SimServoBus:
         with self._lock:
             if self.strict_baud:
                 self._client_baud = self._read_client_baud()
-            replies = self._responder.handle(pkt)
+            deaf, garbled = self._instruction_fates(pkt, name) if pkt.crc_ok else ((), ())
+            replies = self._responder.handle(pkt, deaf, garbled)
             due = now
             if host_wire and replies:
                 due += (_PACKET_OVERHEAD + len(pkt.params)) * BITS_PER_BYTE / replies[0][0].baud_rate
@@ -294,9 +409,11 @@ class SimServoBus:
                     due += len(raw) * BITS_PER_BYTE / servo.baud_rate
                 if drop:
                     self.stats["dropped"] += 1
+                    self.wire_stats[self._id_of[servo]]["status", "dropped", name] += 1
                     continue
                 if corrupt:
                     self.stats["corrupted"] += 1
+                    self.wire_stats[self._id_of[servo]]["status", "corrupted", name] += 1
                     raw = raw[:-1] + bytes([raw[-1] ^ 0xFF])
                 if clock_wire:
                     spent_s += servo.return_delay_s + len(raw) * BITS_PER_BYTE / servo.baud_rate
@@ -318,38 +435,3 @@ class SimServoBus:
                 return
             del out[:n]
 
-
-def serve_servos_forever(
-    ids: Iterable[int],
-    baud: int = 57600,
-    time_scale: float = 1.0,
-    faults: Iterable[str | Fault] = (),
-    seed: int = 0,
-) -> int:
-    """Run a simulated bus in the foreground until SIGINT or SIGTERM; return 0.
-
-    The first line on stdout is the device path (flushed), so a script can read it and start a
-    client; a human-readable banner goes to stderr. Must run in the main thread (signals).
-    """
-    stop = threading.Event()
-
-    def _handler(signum: int, frame: object) -> None:
-        stop.set()
-
-    previous = {sig: signal.signal(sig, _handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        clock = SimClock(time_scale)
-        with SimServoBus(ids, baud=baud, clock=clock, faults=faults, seed=seed,
-                         strict_fault_ids=True) as bus:
-            print(bus.port, flush=True)
-            print(
-                f"simulating XM430-W350 servos {sorted(bus.servos)} at {baud} baud on "
-                f"{bus.port} (time scale {time_scale:g}); Ctrl-C to stop",
-                file=sys.stderr, flush=True,
-            )
-            while not stop.is_set():
-                stop.wait()
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    return 0

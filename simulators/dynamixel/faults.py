@@ -6,8 +6,19 @@ Syntax (one spec per string; ``--fault`` may be repeated):
 ``corrupt=P``              each status packet goes out with a wrong CRC with probability P
 ``delay=MS``               each status packet is sent MS milliseconds late (host time)
 ``drop=P,corrupt=Q``       several of the above in one string
-``drop:id=N,p=P``          the same, for servo N only (likewise ``corrupt:id=N,p=P``,
+``drop=P,corrupt=Q,dir=D`` ``drop``/``corrupt`` in direction D: ``status`` (servo → host, the
+                           default, so every older spec keeps its meaning), ``instruction``
+                           (host → servo) or ``both``; e.g. a noisy cable is
+                           ``drop=0.05,corrupt=0.05,dir=both``
+``drop:id=N,p=P[,dir=D]``  the same, for servo N only (likewise ``corrupt:id=N,p=P[,dir=D]``,
                            ``delay:id=N,ms=MS``)
+
+Instruction faults are drawn per servo that the packet addresses (the unicast ID, the IDs of a
+SYNC/BULK instruction, every servo for other broadcasts), so one servo may miss a SYNC_WRITE
+that the others act on. A dropped instruction is never heard: no action, no reply (a read then
+times out). A corrupted one is heard with a wrong CRC and discarded: a unicast packet is
+answered with the CRC error (error number 3, as the X-series e-manual states), a broadcast one
+(SYNC_WRITE, SYNC_READ, ...) is ignored by that servo. ``delay`` applies to status packets only.
 ``overload:id=N,after=S``  servo N trips on overload S seconds of simulated time after the bus
                            starts (at the first moment its torque is on): bit 5 of hardware
                            error status, torque off
@@ -21,25 +32,47 @@ Syntax (one spec per string; ``--fault`` may be repeated):
                            servo N's shaft is blocked below/above T ticks (encoder frame): it
                            stalls there, then trips on overload
 
-Randomness comes from one ``random.Random(seed)`` per bus, so a seeded run is repeatable.
+Randomness comes from one ``random.Random(seed)`` per bus, so a seeded run is repeatable (an
+instruction fault draws from it only when its probability is non-zero, so adding none leaves
+the status-packet draws of older seeded runs unchanged).
 """
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from drivers.errors import ConfigError
 
 _SYNTAX = (
-    "use drop=P, corrupt=P, delay=MS, overload:id=N,after=S, overheat:id=N, "
-    "voltage:id=N,volts=V or obstruction:id=N,min=T"
+    "use drop=P, corrupt=P (add dir=status|instruction|both), delay=MS, "
+    "overload:id=N,after=S, overheat:id=N, voltage:id=N,volts=V or obstruction:id=N,min=T"
 )
+
+
+class Direction(enum.Flag):
+    """Which packets a ``drop``/``corrupt`` fault hits."""
+
+    STATUS = enum.auto()
+    """Status packets, servo → host (the default)."""
+    INSTRUCTION = enum.auto()
+    """Instruction packets, host → servo."""
+    BOTH = STATUS | INSTRUCTION
+
+    @property
+    def word(self) -> str:
+        """The spelling in a fault spec (``status``, ``instruction``, ``both``)."""
+        return {Direction.STATUS: "status", Direction.INSTRUCTION: "instruction"}.get(self, "both")
+
+
+_DIRECTIONS = {"status": Direction.STATUS, "instruction": Direction.INSTRUCTION,
+               "both": Direction.BOTH}
 
 _WIRE = {"drop": "p", "corrupt": "p", "delay": "ms"}
 _NAMED = {
-    "drop": ({"id", "p"}, {"id", "p"}),
-    "corrupt": ({"id", "p"}, {"id", "p"}),
+    "drop": ({"id", "p"}, {"id", "p", "dir"}),
+    "corrupt": ({"id", "p"}, {"id", "p", "dir"}),
     "delay": ({"id", "ms"}, {"id", "ms"}),
     "overload": ({"id"}, {"id", "after"}),
     "overheat": ({"id"}, {"id", "after", "heat"}),
@@ -50,16 +83,20 @@ _NAMED = {
 
 @dataclass(frozen=True)
 class Fault:
-    """One fault: ``kind`` and its numeric parameters (``id`` is None for all servos)."""
+    """One fault: ``kind``, its numeric parameters (``id`` is None for all servos) and, for
+    ``drop``/``corrupt``, the packets it hits."""
 
     kind: str
     servo_id: int | None = None
     params: dict[str, float] = field(default_factory=dict)
+    direction: Direction = Direction.STATUS
 
     def __str__(self) -> str:
         parts = ([f"id={self.servo_id}"] if self.servo_id is not None else []) + [
             f"{k}={v:g}" for k, v in self.params.items()
         ]
+        if self.direction != Direction.STATUS:
+            parts.append(f"dir={self.direction.word}")
         return f"{self.kind}:{','.join(parts)}"
 
 
@@ -72,14 +109,23 @@ def _number(spec: str, key: str, text: str) -> float:
         ) from None
 
 
-def _pairs(spec: str, body: str) -> dict[str, float]:
+def _pairs(spec: str, body: str) -> tuple[dict[str, float], Direction | None]:
+    """Numeric ``key=value`` pairs, and the ``dir=`` word if there is one."""
     out: dict[str, float] = {}
+    direction: Direction | None = None
     for part in body.split(","):
         key, sep, value = part.strip().partition("=")
-        if not sep or not key.strip():
+        key, value = key.strip(), value.strip()
+        if not sep or not key:
             raise ConfigError(f"fault spec {spec!r}: {part!r} is not key=value; {_SYNTAX}")
-        out[key.strip()] = _number(spec, key.strip(), value.strip())
-    return out
+        if key == "dir":
+            if value.lower() not in _DIRECTIONS:
+                raise ConfigError(f"fault spec {spec!r}: dir={value!r} must be status, "
+                                  f"instruction or both")
+            direction = _DIRECTIONS[value.lower()]
+        else:
+            out[key] = _number(spec, key, value)
+    return out, direction
 
 
 def _check(spec: str, fault: Fault) -> Fault:
@@ -112,21 +158,27 @@ def parse_fault(spec: str) -> list[Fault]:
     if colon:
         if kind not in _NAMED:
             raise ConfigError(f"fault spec {spec!r}: unknown fault {kind!r}; {_SYNTAX}")
-        params = _pairs(spec, body)
+        params, direction = _pairs(spec, body)
         required, allowed = _NAMED[kind]
-        missing, extra = required - params.keys(), params.keys() - allowed
+        given = params.keys() | ({"dir"} if direction is not None else set())
+        missing, extra = required - given, given - allowed
         if missing or extra:
             what = f"missing {sorted(missing)}" if missing else f"unknown {sorted(extra)}"
             raise ConfigError(f"fault spec {spec!r}: {what}; {_SYNTAX}")
         servo_id = params.pop("id")
         if servo_id != int(servo_id):
             raise ConfigError(f"fault spec {spec!r}: id must be an integer")
-        return [_check(spec, Fault(kind, int(servo_id), params))]
+        return [_check(spec, Fault(kind, int(servo_id), params,
+                                   direction or Direction.STATUS))]
     faults = []
-    for key, value in _pairs(spec, text).items():
+    pairs, direction = _pairs(spec, text)
+    if direction is not None and not {"drop", "corrupt"} & pairs.keys():
+        raise ConfigError(f"fault spec {spec!r}: dir= needs drop=P or corrupt=P; {_SYNTAX}")
+    for key, value in pairs.items():
         if key not in _WIRE:
             raise ConfigError(f"fault spec {spec!r}: unknown fault {key!r}; {_SYNTAX}")
-        faults.append(_check(spec, Fault(key, None, {_WIRE[key]: value})))
+        hits = direction if key != "delay" and direction is not None else Direction.STATUS
+        faults.append(_check(spec, Fault(key, None, {_WIRE[key]: value}, hits)))
     return faults
 
 
@@ -140,11 +192,14 @@ def parse_faults(specs: Iterable[str | Fault]) -> list[Fault]:
 
 @dataclass
 class WireFaults:
-    """Per-servo wire faults: drop / corrupt probability and extra delay (s)."""
+    """Per-servo wire faults: drop / corrupt probability of its status packets and of the
+    instruction packets addressed to it, and extra reply delay (s)."""
 
     drop: float = 0.0
     corrupt: float = 0.0
     delay_s: float = 0.0
+    instruction_drop: float = 0.0
+    instruction_corrupt: float = 0.0
 
 
 def wire_faults_for(faults: Iterable[Fault], servo_id: int) -> WireFaults:
@@ -154,10 +209,17 @@ def wire_faults_for(faults: Iterable[Fault], servo_id: int) -> WireFaults:
     for f in ordered:
         if f.kind not in _WIRE or f.servo_id not in (None, servo_id):
             continue
-        if f.kind == "drop":
-            wf.drop = f.params["p"]
-        elif f.kind == "corrupt":
-            wf.corrupt = f.params["p"]
-        else:
+        p = f.params.get("p", 0.0)
+        if f.kind == "delay":
             wf.delay_s = f.params["ms"] / 1000.0
+        elif f.kind == "drop":
+            if Direction.STATUS in f.direction:
+                wf.drop = p
+            if Direction.INSTRUCTION in f.direction:
+                wf.instruction_drop = p
+        else:
+            if Direction.STATUS in f.direction:
+                wf.corrupt = p
+            if Direction.INSTRUCTION in f.direction:
+                wf.instruction_corrupt = p
     return wf

@@ -210,11 +210,6 @@ class PacketParser:
             yield Packet(raw[4], region[0], region[1:], crc_ok)
 
 
-def le_bytes(value: int, size: int) -> bytes:
-    """``value`` as ``size`` little-endian bytes (two's complement for negatives)."""
-    return (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
-
-
 def from_le(data: bytes | bytearray, signed: bool = False) -> int:
     """Little-endian bytes to int."""
     return int.from_bytes(data, "little", signed=signed)

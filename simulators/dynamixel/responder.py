@@ -13,11 +13,14 @@ Rules followed (Protocol 2.0):
 - Status Return Level: 0 answers PING only, 1 PING and reads, 2 everything.
 - The error byte carries the error number, plus the Alert bit (0x80) when the servo's Hardware
   Error Status is non-zero.
+- Instruction faults (drawn by the bus per addressed servo, see :meth:`Responder.addressed`): a
+  servo in ``deaf`` never hears the packet; one in ``garbled`` hears it with a bad CRC (the
+  unicast rule above; a broadcast is ignored by that servo while the others act on it).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 
 from simulators.dynamixel import control_table as ct
 from simulators.dynamixel.protocol import (
@@ -68,11 +71,38 @@ class Responder:
                  hears: Callable[[SimServo], bool] | None = None) -> None:
         self.servos = list(servos)
         self.hears = hears
+        self._missing: Collection[SimServo] = ()  # servos that miss the packet being handled
 
     def _listening(self) -> list[SimServo]:
+        servos = self.servos
+        if self._missing:
+            servos = [s for s in servos if s not in self._missing]
         if self.hears is None:
-            return self.servos
-        return [s for s in self.servos if self.hears(s)]
+            return servos
+        return [s for s in servos if self.hears(s)]
+
+    def addressed(self, pkt: Packet) -> list[SimServo]:
+        """The servos ``pkt`` is meant for, in packet order: the unicast ID, the IDs a
+        SYNC/BULK instruction lists, every servo for other broadcasts (deafness ignored)."""
+        by_id = {s.servo_id: s for s in self.servos}
+        p = pkt.params
+        if pkt.servo_id != BROADCAST_ID:
+            ids: list[int] = [pkt.servo_id]
+        elif pkt.instruction == Instruction.SYNC_READ:
+            ids = list(p[4:])
+        elif pkt.instruction == Instruction.SYNC_WRITE and len(p) >= 4:
+            block = 1 + from_le(p[2:4])
+            ids = list(p[4::block]) if block > 1 else []
+        elif pkt.instruction == Instruction.BULK_READ:
+            ids = list(p[0::5])
+        elif pkt.instruction == Instruction.BULK_WRITE:
+            ids, i = [], 0
+            while i + 5 <= len(p):
+                ids.append(p[i])
+                i += 5 + from_le(p[i + 3 : i + 5])
+        else:
+            return sorted(self.servos, key=lambda s: s.servo_id)
+        return [by_id[i] for i in dict.fromkeys(ids) if i in by_id]
 
     def _find(self, servo_id: int) -> SimServo | None:
         for s in self._listening():
@@ -80,14 +110,24 @@ class Responder:
                 return s
         return None
 
-    def handle(self, pkt: Packet) -> list[Reply]:
-        """Execute ``pkt``; return the status packets to send, in order."""
+    def handle(self, pkt: Packet, deaf: Collection[SimServo] = (),
+               garbled: Collection[SimServo] = ()) -> list[Reply]:
+        """Execute ``pkt``; return the status packets to send, in order.
+
+        ``deaf`` servos do not hear it; ``garbled`` ones hear it with a bad CRC.
+        """
         if pkt.servo_id == BROADCAST_ID:
-            return [] if not pkt.crc_ok else self._broadcast(pkt)
+            if not pkt.crc_ok:
+                return []
+            self._missing = set(deaf) | set(garbled)
+            try:
+                return self._broadcast(pkt)
+            finally:
+                self._missing = ()
         servo = self._find(pkt.servo_id)
-        if servo is None:
+        if servo is None or servo in deaf:
             return []
-        if not pkt.crc_ok:
+        if not pkt.crc_ok or servo in garbled:
             if servo.status_return_level < 2 and pkt.instruction != Instruction.PING:
                 return []
             return [(servo, _status(servo, ErrorCode.CRC))]

@@ -19,16 +19,24 @@ Physics, in short:
 - Input voltage: supply minus a small sag while moving; outside the voltage limits, hardware
   error bit 0 (Alert, torque stays on unless Shutdown says otherwise).
 - An obstruction (min/max shaft ticks) stops the shaft there; after ``stall_trip_s`` of pushing
-  the servo trips on overload.
+  the servo trips on overload. A contact (:meth:`SimServo.sim_set_contact`, set by the solid
+  world of :mod:`simulators.dynamixel.world` when the arms touch) is an obstruction at the
+  present position in one direction of travel: the servo stalls there in the same way, and can
+  always move away from it.
+- A servo attached to a solid world (:meth:`SimServo.sim_attach_world`) lets the world advance
+  every servo of the rig together before it advances itself, so that contacts between arms are
+  found on the world's physics tick whoever asks first.
 - A trip sets the Hardware Error Status bit; bits in Shutdown (63) turn the torque off and refuse
   torque-on (Result Fail) until REBOOT, which clears the bits whose cause is gone.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 import threading
+from collections.abc import Callable
 
 from simulators.clock import SimClock
 from simulators.dynamixel import control_table as ct
@@ -113,6 +121,9 @@ class SimServo:
         self._tau = thermal_tau_s
         self._stall_trip_s = stall_trip_s
         self._obstruction: tuple[float | None, float | None] = (None, None)
+        self._contact: tuple[float, int] | None = None  # (shaft ticks, blocked direction ±1)
+        self._world: Callable[[float], None] | None = None
+        self._motion_gen = 0  # bumped whenever the planned motion may change
         self._registered: tuple[int, bytes] | None = None
         self._overload_at: float | None = None
         self._heat_faults: list[tuple[float, float]] = []  # (from sim time, extra °C)
@@ -281,11 +292,101 @@ class SimServo:
             self._advance(self.clock.now())
             self._trip(bits)
 
-    def sim_temperature_c(self) -> float:
-        """Winding temperature (°C, not rounded)."""
+    # ------------------------------------------------------------------ solid-world interface
+    # Positions here are Present Position ticks (register frame: shaft + Homing Offset), the
+    # frame a rig's zero_tick is given in. Callers hold the bus lock.
+    def sim_attach_world(self, advance: Callable[[float], None] | None) -> None:
+        """Call ``advance(t)`` (the solid world's step to ``t``) before this servo advances."""
+        self._world = advance
+
+    def sim_step_to(self, t: float) -> None:
+        """Advance this servo alone to simulated time ``t`` (the world's own stepping)."""
         with self._lock:
-            self._advance(self.clock.now())
-            return self._temp
+            self._step(t)
+
+    def sim_next_event_s(self) -> float:
+        """Simulated time of the next discrete event (arrival, stall, trip...), ``inf`` if none."""
+        with self._lock:
+            event = self._next_event(self._t)
+            return event[0] if event is not None else math.inf
+
+    @property
+    def sim_motion_generation(self) -> int:
+        """Changes whenever the servo's planned motion may have changed (a new goal, a stop,
+        a contact block): while it stays, the motion is the planned one, or slower."""
+        return self._motion_gen
+
+    def sim_moving(self) -> bool:
+        """True while the shaft follows a profile (not stalled, torque on)."""
+        return self.torque_on and self._traj is not None and self._stall_since is None
+
+    def sim_peek_ticks(self, t: float) -> float:
+        """Position (Present Position ticks) at ``t`` ≥ the servo's time, assuming no event
+        (:meth:`sim_next_event_s`) comes first; nothing is changed."""
+        return self._shaft_at(t) + self._get("homing_offset")
+
+    def sim_speed_bound_ticks_per_s(self) -> float:
+        """Upper bound of |velocity| (ticks/s) over the rest of the present move (0 at rest)."""
+        if not self.sim_moving():
+            return 0.0
+        t = self._t
+        return max((max(abs(seg.v0), abs(seg.velocity(seg.t1)))
+                    for seg in self._traj.segments if seg.t1 > t), default=0.0)
+
+    def sim_direction(self) -> int:
+        """Direction of travel now: +1, −1 (towards the goal if at rest on a profile), 0."""
+        if not self.sim_moving():
+            return 0
+        _, v = self._traj.state(self._t)
+        if abs(v) < 1e-9:
+            v = self._traj.target - self._pos
+        return (v > 0) - (v < 0)
+
+    def sim_set_contact(self, direction: int | None) -> None:
+        """Block travel beyond the present position in ``direction`` (+1 up, −1 down), as an
+        obstruction there would; None removes the block (a stalled move resumes). Acts at the
+        servo's own simulated time (where the world has stepped it), not at the clock's now."""
+        with self._lock:
+            self._motion_gen += 1
+            self._contact = None if not direction else (self._pos, 1 if direction > 0 else -1)
+            if self._traj is not None:
+                self._replan(self._traj.target)
+
+    def sim_follow_contact(self, ticks: float) -> None:
+        """Move a servo stalled at a contact on to ``ticks`` (Present Position), where the
+        contact has gone (the other arm gave way); it stays stalled: still pushing, its stall
+        time runs on."""
+        with self._lock:
+            if self._contact is None or self._stall_since is None:
+                raise RuntimeError("sim_follow_contact: the servo is not stalled at a contact")
+            shaft = ticks - self._get("homing_offset")
+            self._motion_gen += 1
+            self._pos, self._vel = shaft, 0.0
+            self._contact = (shaft, self._contact[1])
+
+    def sim_goal_ticks(self) -> float | None:
+        """Target (Present Position ticks) of the present move, also while stalled; None at
+        rest or with torque off."""
+        if not self.torque_on or self._traj is None:
+            return None
+        return self._traj.target + self._get("homing_offset")
+
+    def sim_profile_speed_ticks_per_s(self) -> float:
+        """Fastest |velocity| (ticks/s) of the present move's profile, also while stalled."""
+        if not self.torque_on or self._traj is None:
+            return 0.0
+        return max((max(abs(seg.v0), abs(seg.velocity(seg.t1))) for seg in self._traj.segments),
+                   default=0.0)
+
+    def sim_contact(self) -> tuple[float, int] | None:
+        """(Present Position ticks, blocked direction) of the contact block, or None."""
+        if self._contact is None:
+            return None
+        return self._contact[0] + self._get("homing_offset"), self._contact[1]
+
+    def sim_stalled(self) -> bool:
+        """True while the shaft pushes against an obstruction or a contact."""
+        return self._stall_since is not None
 
     # ------------------------------------------------------------------ internals
     def _add_fault(self, f: Fault) -> None:
@@ -341,14 +442,36 @@ class SimServo:
             self._check_voltage()
         return ErrorCode.NONE
 
-    def _replan(self, target: float) -> None:
-        t = self._t
+    def _bounds(self) -> tuple[float | None, float | None]:
+        """Shaft bounds (ticks) of the obstruction fault and the contact, combined."""
         lo, hi = self._obstruction
+        if self._contact is not None:
+            at, direction = self._contact
+            if direction > 0:
+                hi = at if hi is None else min(hi, at)
+            else:
+                lo = at if lo is None else max(lo, at)
+        return lo, hi
+
+    def _shaft_at(self, t: float) -> float:
+        """Shaft ticks at ``t`` ≥ self._t if no event comes first (no state change)."""
+        if not self.sim_moving():
+            return self._pos
+        if self._hit is not None and t >= self._hit[0]:
+            return self._hit[1]
+        return self._traj.state(t)[0]
+
+    def _replan(self, target: float) -> None:
+        self._motion_gen += 1
+        t = self._t
+        lo, hi = self._bounds()
         if self._stall_since is not None:
             at_hi = hi is not None and abs(self._pos - hi) < 1e-6
             at_lo = lo is not None and abs(self._pos - lo) < 1e-6
             if (at_hi and target > self._pos) or (at_lo and target < self._pos):
-                return  # still pushing against the obstruction: stays stalled
+                if self._traj is not None:  # still pushing: stays stalled, towards the new goal
+                    self._traj = dataclasses.replace(self._traj, target=target)
+                return
             self._stall_since, self._stall_tripped = None, False
         time_based = bool(self._get("drive_mode") & 0x04)
         vmax, amax = limits_from_registers(
@@ -422,6 +545,11 @@ class SimServo:
         self._t = t
 
     def _advance(self, now: float) -> None:
+        if self._world is not None:
+            self._world(now)  # steps every servo of the rig (this one too) to now
+        self._step(now)
+
+    def _step(self, now: float) -> None:
         while True:
             event = self._next_event(self._t)
             if event is None or event[0] > now:
@@ -454,6 +582,7 @@ class SimServo:
             self._trip(ct.HW_INPUT_VOLTAGE)
 
     def _stop_motion(self) -> None:
+        self._motion_gen += 1
         self._traj, self._hit, self._stall_since, self._vel = None, None, None, 0.0
         self._stall_tripped = False
 

@@ -12,10 +12,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("drivers", "simulators", "calibration", "acquisition")
-TERMINAL_IO_ALLOWED = {"acquisition/session/interrupts.py", "simulators/dynamixel/bus.py"}
+TERMINAL_IO_ALLOWED = {"acquisition/session/interrupts.py"}
 """The Ctrl-C handler writes with a signal-safe ``os.write`` to stderr (print must not run in
-a signal handler). ``simulators/dynamixel/bus.py`` until its foreground server reports the
-device path through a callback (work in progress on the safe-motion branch)."""
+a signal handler)."""
 
 
 @dataclass(frozen=True)

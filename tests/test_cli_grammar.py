@@ -111,7 +111,7 @@ def test_legacy_spellings_still_parse() -> None:
 def test_deprecated_fault_option_says_so(monkeypatch: pytest.MonkeyPatch,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     seen: list[object] = []
-    monkeypatch.setattr(api, "serve_servos", lambda *a: seen.append(a) or 0, raising=False)
+    monkeypatch.setattr(api, "serve_servos", lambda *a, **k: seen.append(a) or 0, raising=False)
     assert main(["sim", "servos", "--ids", "1,2", "--fault", "drop=0.1"]) == 0
     assert "--fault is deprecated: use --sim-fault" in capsys.readouterr().err
     assert seen and seen[0][3] == ["drop=0.1"]

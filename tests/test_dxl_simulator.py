@@ -585,7 +585,7 @@ def test_many_ids_on_one_bus(clock):
 
 def test_serve_servos_forever_prints_the_path_first_and_stops_on_sigterm():
     code = ("from simulators.dynamixel import serve_servos_forever as s;"
-            "raise SystemExit(s([1, 2], 57600, 1.0, [], 0))")
+            "raise SystemExit(s([1, 2], 57600, 1.0, [], 0, ready=lambda b: print(b.port, flush=True)))")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:

@@ -92,7 +92,7 @@ def test_arms_default_to_the_rig_parsers_numbers():
 
 def test_the_same_numbers_as_gonio_states():
     # The simulator duplicates gonio's [arms] defaults on purpose; they must not drift apart.
-    from acquisition.rig import load_rig
+    from acquisition.config.rig import load_rig
 
     for path in (RIG_SIM, RIG_COAXIAL):
         theirs = load_rig(path).arms
@@ -424,7 +424,8 @@ def test_serve_rig_forever_prints_the_path_first_and_stops_on_sigterm():
     import sys
 
     code = ("from simulators.dynamixel import serve_rig_forever as s;"
-            f"raise SystemExit(s({str(RIG_SIM)!r}))")
+            f"raise SystemExit(s({str(RIG_SIM)!r}, "
+            "ready=lambda r: print(*r.ports.values(), sep='\\n', flush=True)))")
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:

@@ -50,7 +50,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.lightstage.relight": ("relight_files",),
     "acquisition.lightstage.sequences": ("SEQUENCES", "TimeEstimate"),
     "acquisition.analysis.plots": ("plot_slices", "plot_sweep"),
-    "acquisition.simworld.serve": ("serve_servos", "serve_dmx"),
+    "acquisition.simworld.serve": ("serve_servos", "serve_rig", "serve_dmx"),
     "calibration.raw": ("inspect_raw", "format_inspection"),
     "drivers.dynamixel.bus": ("COMMON_BAUD_RATES",),
     "drivers.errors": ("GonioError", "ConfigError", "SessionError"),
@@ -130,7 +130,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     )
     from acquisition.session.status import SessionStatus, session_status
     from acquisition.simworld.materials import DEFAULT_MATERIAL
-    from acquisition.simworld.serve import serve_dmx, serve_servos
+    from acquisition.simworld.serve import serve_dmx, serve_rig, serve_servos
     from acquisition.tables import IsotropicTable, MerlTable
     from calibration.raw import format_inspection, inspect_raw
     from drivers.dynamixel.bus import COMMON_BAUD_RATES

@@ -33,8 +33,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     devices.required = True
 
     p = devices.add_parser("servos", help="a Dynamixel Protocol 2.0 bus of X-series servos")
-    p.add_argument("--ids", type=_ids, default=[1, 2, 3], help="servo IDs, e.g. 1,2,3")
-    p.add_argument("--baud", type=int, default=57600)
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--ids", type=_ids, default=None,
+                       help="a bare bus of servos with these IDs, e.g. 1,2,3 (default)")
+    which.add_argument("--rig", help="serve this rig file's servos (IDs, baud, limits, park "
+                                     "pose) with its solid parts: arms that touch stall and trip")
+    p.add_argument("--baud", type=int, default=57600, help="bare bus baud rate (default 57600)")
+    p.add_argument("--stall-trip-s", type=float, default=1.0,
+                   help="with --rig: stall time before the overload trip (device s, default 1)")
     p.add_argument("--time-scale", type=float, default=1.0,
                    help="simulated seconds per real second (default 1)")
     add_sim_fault(p)
@@ -47,11 +53,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_dmx)
 
 
+def _announce(paths: list[str]) -> None:
+    """Each device path on its own line, first on stdout; a note for the human on stderr."""
+    print("\n".join(paths), flush=True)
+    print(f"gonio: serving {', '.join(paths)}; Ctrl-C to stop", file=sys.stderr, flush=True)
+
+
 def run_servos(args: argparse.Namespace) -> int:
     if args.old_fault:
         print("gonio: warning: --fault is deprecated: use --sim-fault", file=sys.stderr)
     faults = [*args.sim_fault, *args.old_fault]
-    return api.serve_servos(args.ids, args.baud, args.time_scale, faults, args.seed)
+    if args.rig:
+        return api.serve_rig(args.rig, args.time_scale, faults, args.seed, ready=_announce,
+                             stall_trip_s=args.stall_trip_s)
+    return api.serve_servos(args.ids or [1, 2, 3], args.baud, args.time_scale, faults,
+                            args.seed, ready=_announce)
 
 
 def run_dmx(args: argparse.Namespace) -> int:

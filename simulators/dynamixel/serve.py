@@ -2,16 +2,15 @@
 
 :func:`serve_servos_forever` runs a bare bus (``--ids``); :func:`serve_rig_forever` a rig file's
 servos with its solid parts (``--rig``). Both call ``ready`` once the ptys exist, so the caller
-(the CLI) decides how to announce them; without one, each pty path is written as one line to
-stdout (flushed), the contract scripts rely on: the first line is the device path. The banner
-goes to this module's logger (INFO). Both must run in the main thread (signals).
+(the CLI) announces them (``gonio sim servos`` prints each path as one line on stdout, first,
+the contract scripts rely on). The banner goes to this module's logger (INFO). Both must run
+in the main thread (signals).
 """
 
 from __future__ import annotations
 
 import logging
 import signal
-import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -23,12 +22,6 @@ from simulators.dynamixel.faults import Fault
 from simulators.dynamixel.rig import RigSource, SimRig
 
 logger = logging.getLogger(__name__)
-
-
-def _write_paths(paths: Iterable[str]) -> None:
-    for path in paths:
-        sys.stdout.write(path + "\n")
-    sys.stdout.flush()
 
 
 @contextmanager
@@ -53,16 +46,16 @@ def serve_servos_forever(
     faults: Iterable[str | Fault] = (),
     seed: int = 0,
     *,
-    ready: Callable[[SimServoBus], None] | None = None,
+    ready: Callable[[SimServoBus], None],
 ) -> int:
     """Run a bare simulated bus until SIGINT or SIGTERM; return 0.
 
-    ``ready(bus)`` is called once the pty exists (default: its path on stdout).
+    ``ready(bus)`` is called once the pty exists (``bus.port`` is its path).
     """
     with _until_signalled() as stop, SimServoBus(
             ids, baud=baud, clock=SimClock(time_scale), faults=faults, seed=seed,
             strict_fault_ids=True) as bus:
-        (ready or (lambda b: _write_paths([b.port])))(bus)
+        ready(bus)
         logger.info("simulating XM430-W350 servos %s at %d baud on %s (time scale %g); "
                     "Ctrl-C to stop", sorted(bus.servos), baud, bus.port, time_scale)
         while not stop.is_set():
@@ -76,17 +69,17 @@ def serve_rig_forever(
     faults: Iterable[str | Fault] = (),
     seed: int = 0,
     *,
-    ready: Callable[[SimRig], None] | None = None,
+    ready: Callable[[SimRig], None],
     **options: Any,
 ) -> int:
     """Run a rig file's servos with its solid parts until SIGINT or SIGTERM; return 0.
 
-    ``ready(sim_rig)`` is called once the ptys exist (default: one path per bus on stdout, in
+    ``ready(sim_rig)`` is called once the ptys exist (``sim_rig.ports``: one path per bus, in
     the rig file's bus order). ``options`` go to :class:`SimRig` (``stall_trip_s``, ...).
     """
     with _until_signalled() as stop, SimRig(rig, clock=SimClock(time_scale), faults=faults,
                                             seed=seed, **options) as sim:
-        (ready or (lambda r: _write_paths(r.ports.values())))(sim)
+        ready(sim)
         for name, bus in sim.buses.items():
             logger.info("bus '%s': servos %s at %d baud on %s", name, sorted(bus.servos),
                         bus.baud, bus.port)

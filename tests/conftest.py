@@ -84,17 +84,36 @@ def sim(clock):
 
 
 @pytest.fixture
-def sims(monkeypatch: pytest.MonkeyPatch) -> list:
+def sims() -> list:
     """Every simulated bus the code under test starts (to look at its servos afterwards)."""
-    import acquisition.simworld.servos as devices_mod
-    from simulators.dynamixel import SimServoBus
+    return _STARTED_BUSES
 
-    started: list[SimServoBus] = []
 
-    class Recorded(SimServoBus):
-        def __init__(self, *args: object, **kwargs: object) -> None:
-            super().__init__(*args, **kwargs)
-            started.append(self)
+_STARTED_BUSES: list = []
 
-    monkeypatch.setattr(devices_mod, "SimServoBus", Recorded)
-    return started
+
+@pytest.fixture(autouse=True)
+def no_unexpected_collision(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch):
+    """Fail any test whose simulated arms touched, unless it is marked
+    ``@pytest.mark.collides`` (it drives them into each other on purpose).
+
+    Records every simulated bus started during the test (the ``sims`` fixture) and, after it,
+    asks each for the collisions its own model of the arms saw.
+    """
+    from simulators.dynamixel import bus as bus_mod
+
+    _STARTED_BUSES.clear()
+    original = bus_mod.SimServoBus.__init__
+
+    def recording_init(self, *args, **kwargs) -> None:  # noqa: ANN001
+        original(self, *args, **kwargs)
+        _STARTED_BUSES.append(self)
+
+    monkeypatch.setattr(bus_mod.SimServoBus, "__init__", recording_init)
+    yield
+    if request.node.get_closest_marker("collides"):
+        return
+    seen = {id(c): c for bus in _STARTED_BUSES for c in bus.sim_collisions()}
+    if seen:
+        pytest.fail("the simulated arms collided: " + "; ".join(map(str, seen.values())),
+                    pytrace=False)

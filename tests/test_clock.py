@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from guards import RecordingGuard
 
 from acquisition.config.rig import MOTION_POLL_S, load_rig, move_bus_time_s, sync_read_s
 from acquisition.devices.servos import open_servos
@@ -128,7 +129,7 @@ def test_motion_controller_polls_on_a_stepped_clock() -> None:
     axis = Axis(name="a", servo_id=1, zero_tick=2048, direction=1, min_deg=-170, max_deg=170,
                 profile_velocity=100, profile_acceleration=20)
     with SimServoBus([1], clock=clock, wire_time="clock") as sim, ServoBus(sim.port, 57600) as bus:
-        motion = MotionController([axis], bus, guard=lambda t: None, sleep=clock.sleep,
+        motion = MotionController([axis], bus, guard=RecordingGuard(), sleep=clock.sleep,
                                   monotonic=clock.now, poll_s=0.01)
         motion.apply_profiles()
         motion.set_torque(True)

@@ -7,6 +7,7 @@ import threading
 import time
 
 import pytest
+from guards import RecordingGuard
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -84,13 +85,13 @@ def bus(sim):
 
 
 @pytest.fixture
-def guard_calls():
-    return []
+def guard():
+    return RecordingGuard()
 
 
 @pytest.fixture
-def mc(bus, guard_calls):
-    controller = MotionController(AXES, bus, guard=guard_calls.append)
+def mc(bus, guard):
+    controller = MotionController(AXES, bus, guard=guard)
     controller.apply_profiles()
     controller.set_torque(True)
     return controller
@@ -117,7 +118,7 @@ def test_controller_needs_a_guard(bus):
         MotionController(AXES, bus, guard=None)
 
 
-def test_move_is_guarded_sent_once_and_confirmed_by_readback(mc, sim, guard_calls):
+def test_move_is_guarded_sent_once_and_confirmed_by_readback(mc, sim, guard):
     sleeps = []
 
     def sleep(s):
@@ -127,7 +128,9 @@ def test_move_is_guarded_sent_once_and_confirmed_by_readback(mc, sim, guard_call
     mc._sleep = sleep
     before = sim.instructions["SYNC_WRITE"]
     result = mc.move_to({"theta_i": 30.0, "theta_r": -45.0, "phi": 120.0})
-    assert guard_calls == [{"theta_i": 30.0, "theta_r": -45.0, "phi": 120.0}]
+    assert guard.targets == [{"theta_i": 30.0, "theta_r": -45.0, "phi": 120.0}]
+    start = guard.calls[0][0]
+    assert set(start) == {"theta_i", "theta_r", "phi"}  # the guard sees where every axis stands
     assert sim.instructions["SYNC_WRITE"] - before == 1  # one sync write for the bus
     for name, target in {"theta_i": 30.0, "theta_r": -45.0, "phi": 120.0}.items():
         axis = mc.axes[name]
@@ -138,14 +141,16 @@ def test_move_is_guarded_sent_once_and_confirmed_by_readback(mc, sim, guard_call
 
 
 def test_guard_refusal_sends_nothing(mc, sim):
-    def guard(targets):
-        raise CollisionError(f"arms collide at {targets}")
+    class Refuse:
+        def check_move(self, start, targets):
+            raise CollisionError(f"arms collide at {targets}")
 
-    mc.guard = guard
-    before = sum(sim.instructions.values())
+    mc.guard = Refuse()
+    writes = ("WRITE", "SYNC_WRITE", "REG_WRITE", "BULK_WRITE")
+    before = sum(sim.instructions[k] for k in writes)
     with pytest.raises(CollisionError):
         mc.move_to({"theta_i": 10.0})
-    assert sum(sim.instructions.values()) == before
+    assert sum(sim.instructions[k] for k in writes) == before  # it may read where axes stand
 
 
 def test_soft_limits_and_unknown_axes_send_nothing(mc, sim):
@@ -168,7 +173,7 @@ def test_torque_off_is_refused_before_sending(mc, sim, bus):
 def test_overload_during_a_move_names_the_axis_and_stops_all(clock):
     with SimServoBus([1, 2, 3], clock=clock, faults=["overload:id=2,after=0.5"]) as sim, \
             ServoBus(sim.port, name="arms") as bus:
-        mc = MotionController(AXES, bus, guard=lambda targets: None)
+        mc = MotionController(AXES, bus, guard=RecordingGuard())
         with clock.frozen():  # set-up costs no simulated time, however loaded the machine
             slow_down(mc)
             mc.set_torque(True)
@@ -259,7 +264,7 @@ def test_two_buses_one_sync_write_each(clock):
             ServoBus(sim_a.port, name="a") as bus_a, ServoBus(sim_b.port, name="b") as bus_b:
         axes = [AXES[0], AXES[1], Axis("phi", 1, min_deg=-170, max_deg=170)]
         mc = MotionController(axes, {"theta_i": bus_a, "theta_r": bus_a, "phi": bus_b},
-                              guard=lambda targets: None)
+                              guard=RecordingGuard())
         mc.set_torque(True)
         result = mc.move_to({"theta_i": 20.0, "theta_r": 10.0, "phi": -30.0})
         assert result == pytest.approx({"theta_i": 20.0, "theta_r": 10.0, "phi": -30.0},
@@ -270,4 +275,4 @@ def test_two_buses_one_sync_write_each(clock):
 
 def test_same_servo_twice_is_a_config_error(bus):
     with pytest.raises(ConfigError, match="both use servo 1"):
-        MotionController([AXES[0], Axis("x", 1, min_deg=0, max_deg=1)], bus, guard=print)
+        MotionController([AXES[0], Axis("x", 1, min_deg=0, max_deg=1)], bus, guard=RecordingGuard())

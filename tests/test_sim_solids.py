@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
+from guards import RecordingGuard
 
 from drivers.dynamixel import Axis, MotionController, OverloadError, ServoBus
 from simulators.clock import SteppedClock
@@ -183,6 +184,7 @@ def out_of_plane(clock):
 CONTACT_DEG = 45.0 - math.degrees(math.asin(0.045 / 0.48))
 
 
+@pytest.mark.collides
 def test_light_arm_driven_into_the_camera_stalls_at_contact_then_trips(out_of_plane, clock):
     rig, port = out_of_plane
     sync_goals(port, {1: ticks(60.0)})
@@ -221,6 +223,7 @@ def test_light_arm_driven_into_the_camera_stalls_at_contact_then_trips(out_of_pl
     assert len(rig.sim_collisions()) == 1
 
 
+@pytest.mark.collides
 def test_moving_away_before_the_trip_clears_the_stall(out_of_plane, clock):
     rig, port = out_of_plane
     sync_goals(port, {1: ticks(60.0)})
@@ -234,6 +237,7 @@ def test_moving_away_before_the_trip_clears_the_stall(out_of_plane, clock):
     assert len(rig.sim_collisions()) == 1
 
 
+@pytest.mark.collides
 def test_a_stalled_arm_follows_when_the_other_moves_away(out_of_plane, clock):
     rig, port = out_of_plane
     sync_goals(port, {1: ticks(60.0)})
@@ -254,6 +258,7 @@ def poll(port: PortHandler, clock: SteppedClock, seconds: float, ids=(1, 2, 3)) 
             read(port, sid, POSITION, 4)
 
 
+@pytest.mark.collides
 def test_only_the_servo_pushing_into_the_contact_stalls_and_follows(out_of_plane, clock):
     rig, port = out_of_plane
     # The camera arm moves away slowly (20 × 0.229 rev/min = 27.5 °/s) while the light, ten
@@ -278,6 +283,7 @@ def test_only_the_servo_pushing_into_the_contact_stalls_and_follows(out_of_plane
     assert len(rig.sim_collisions()) == 1  # one contact episode
 
 
+@pytest.mark.collides
 def test_pushing_a_retreating_arm_for_the_stall_time_trips(out_of_plane, clock):
     rig, port = out_of_plane
     assert PH.write4ByteTxRx(port, 2, 112, 20) == (COMM_SUCCESS, 0)
@@ -308,6 +314,7 @@ def test_arms_moving_past_each_other_with_room_to_spare_see_no_error(out_of_plan
         pytest.approx(0.48 * math.sin(math.radians(6)) - 0.045)
 
 
+@pytest.mark.collides
 def test_a_pass_a_little_too_close_collides(out_of_plane, clock):
     rig, port = out_of_plane
     sync_goals(port, {1: ticks(-30.0), 2: ticks(5.0, 1024), 3: ticks(90.0)})  # 3.2 mm overlap
@@ -318,6 +325,7 @@ def test_a_pass_a_little_too_close_collides(out_of_plane, clock):
     assert hit.axes == ("light_theta",) and hit.positions_deg["light_theta"] < 0
 
 
+@pytest.mark.collides
 def test_coaxial_arms_driven_together_both_stall_while_the_stage_moves_on(clock):
     with serve_rig(RIG_COAXIAL, clock=clock) as rig:
         port = open_port(rig.port)
@@ -340,6 +348,7 @@ def test_coaxial_arms_driven_together_both_stall_while_the_stage_moves_on(clock)
         port.closePort()
 
 
+@pytest.mark.collides
 def test_collisions_are_logged(out_of_plane, clock, caplog):
     rig, port = out_of_plane
     with caplog.at_level(logging.WARNING, logger="simulators.dynamixel.world"):
@@ -373,6 +382,7 @@ def test_a_bare_bus_has_no_solid_parts(clock):
         port.closePort()
 
 
+@pytest.mark.collides
 def test_gonio_driver_without_a_guard_sees_the_overload(clock):
     """The referee catches what a permissive guard lets through."""
     rig_file = load_rig_toml(RIG_SIM)
@@ -381,7 +391,7 @@ def test_gonio_driver_without_a_guard_sees_the_overload(clock):
                      zero_tick=a["zero_tick"], profile_velocity=a["profile_velocity"],
                      profile_acceleration=a["profile_acceleration"])
                 for name, a in rig_file["axes"].items()]
-        mc = MotionController(axes, bus, guard=lambda targets: None, sleep=clock.sleep,
+        mc = MotionController(axes, bus, guard=RecordingGuard(), sleep=clock.sleep,
                               monotonic=clock.now)
         mc.apply_profiles()
         mc.set_torque(True)
@@ -399,6 +409,7 @@ def test_solid_rig_rejects_missing_joints():
                  {"light": Capsule(0.02, 0.4, 0.5), "camera": Capsule(0.02, 0.4, 0.5)})
 
 
+@pytest.mark.collides
 def test_one_world_spans_a_rig_whose_arms_are_on_two_buses(clock):
     data = load_rig_toml(RIG_SIM)
     data["buses"]["arm2"] = {"port": "sim", "baud": 1_000_000, "simulated": True}

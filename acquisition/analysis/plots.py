@@ -80,6 +80,7 @@ REASON_COLOURS = {
     Reason.UNREACHABLE: "#7f7f7f",
     Reason.JOINT_LIMITS: "#9467bd",
     Reason.ARM_COLLISION: "#d62728",
+    Reason.UNROUTABLE: "#bcbd22",
     Reason.SHADOW: "#ff7f0e",
     Reason.FOOTPRINT: "#e377c2",
     Reason.RECIPROCAL: "#17becf",

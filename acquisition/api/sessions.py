@@ -53,22 +53,26 @@ def plan_sweep(plan_path: str | Path, rig_path: str | Path) -> Sweep:
 
 
 def predicted_step_s(records: Iterable[StepRecord], model: TimeModel,
-                     start: Mapping[str, float] | None = None) -> dict[int, float]:
+                     start: Mapping[str, float] | None = None, *,
+                     move_s: Callable[[Mapping[str, float], Mapping[str, float]], float] | None = None,
+                     ) -> dict[int, float]:
     """Predicted rig time (s) of each journal step, in journal order: ``{step: s}``.
 
     A step whose joints differ from the previous step's (the first step always: the engine
     moves once to where it starts) costs the move from there (:meth:`TimeModel.move_s`, from
     ``start`` for the first) plus settle and bus time; every frame costs the exposure, times
-    its bracket factor (``note`` ``"bracket=F"``). Custom steps cost nothing.
+    its bracket factor (``note`` ``"bracket=F"``). Custom steps cost nothing. ``move_s``
+    times a move (default :meth:`TimeModel.move_s`; :meth:`Planner.leg_s` times it as routed).
     """
     costs = model.costs
+    move_s = move_s or model.move_s
     out: dict[int, float] = {}
     at: Mapping[str, float] | None = None
     for rec in records:
         t = 0.0
         joints = rec.joints_cmd
         if joints and (at is None or not _same(at, joints)):
-            t += model.move_s(at if at is not None else (start or joints), joints)
+            t += move_s(at if at is not None else (start or joints), joints)
             t += costs.settle_s + costs.bus_cycle_s
             at = joints
         if rec.kind != CUSTOM:
@@ -92,7 +96,8 @@ def step_durations(session: str | Path | SessionFolder, *, pending_only: bool = 
     planner = folder.planner()
     with folder.journal(readonly=True) as journal:
         records = list(journal.steps())
-    predicted = predicted_step_s(records, planner.time_model, planner.reference_joints())
+    predicted = predicted_step_s(records, planner.time_model, planner.reference_joints(),
+                                 move_s=planner.leg_s)
     if pending_only:
         done = {r.step for r in records if r.status == "done"}
         predicted = {k: v for k, v in predicted.items() if k not in done}

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.devices.health import HealthLimits
-from acquisition.devices.servos import ServoRig, open_servos, park_ticks
+from acquisition.devices.servos import RouteNotice, ServoRig, open_servos, park_ticks
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner
 from acquisition.simworld.servos import scaled_clock, start_simulated_buses
@@ -78,9 +78,12 @@ class Console:
         at once with a :class:`~acquisition.devices.health.ServoHealthError`.
     """
 
-    def __init__(self, servos: ServoRig, *, health_wait_s: float = 0.0) -> None:
+    def __init__(self, servos: ServoRig, *, health_wait_s: float = 0.0,
+                 on_route: RouteNotice | None = None) -> None:
         self.servos = servos
         self.health_wait_s = health_wait_s
+        self.on_route = on_route
+        """Told the legs (joints, deg) of a routed move before it starts (the CLI prints them)."""
 
     @property
     def rig(self) -> RigConfig:
@@ -121,7 +124,9 @@ class Console:
         Raises
         ------
         LimitError, CollisionError
-            The guard refused the resulting pose; nothing was sent.
+            The guard refused the resulting pose, or no route reaches it; nothing was sent.
+            A direct move that is not safe is routed round the other arm; ``on_route`` is told
+            the legs first.
         ServoHealthError
             A servo is too hot or its supply out of range.
         ServoHardwareError, TorqueOffError, MotionTimeoutError
@@ -133,9 +138,10 @@ class Console:
             self._axis(name)
         servos = self.servos
         try:
-            servos.health.wait_until_healthy(self.health_wait_s)
             servos.motion.apply_profiles()
-            return dict(servos.motion.move_to(targets))
+            reached = servos.move_to(targets, health_wait_s=self.health_wait_s,
+                                     on_route=self.on_route)
+            return {n: reached[n] for n in targets}
         except KeyboardInterrupt:
             servos.motion.stop()
             raise SafetyStop(

@@ -21,7 +21,7 @@ import numpy as np
 
 from acquisition.config.rig import RigConfig
 from acquisition.devices.health import HealthGuard, HealthLimits
-from acquisition.devices.servos import open_servos
+from acquisition.devices.servos import open_servos, routed_move
 from acquisition.planning.planner import Planner
 from acquisition.simworld.camera import simulated_camera
 from acquisition.simworld.servos import make_clock
@@ -78,8 +78,10 @@ class RigDevices:
         health: HealthGuard | None = None,
         seeded_camera: bool = False,
         prompt: OperatorPrompt | None = None,
+        planner: Planner | None = None,
     ) -> None:
         self.rig = rig
+        self.planner = planner or Planner(rig)
         self.motion = motion
         self.camera = camera
         self.holder = holder
@@ -89,7 +91,8 @@ class RigDevices:
         self.prompt = prompt
 
     def move_to(self, joints: dict[str, float]) -> dict[str, float]:
-        """Health-checked, guarded, readback-confirmed move; returns the read-back joints (deg).
+        """Health-checked, guarded, readback-confirmed move, routed round the other arm when
+        the direct one is not safe; returns the read-back joints (deg).
 
         Before the move the servos' temperature and supply voltage are read; out of range, the
         move waits (see :class:`HealthGuard`) and raises :class:`ServoHealthError` if they do
@@ -97,7 +100,7 @@ class RigDevices:
         """
         if self.health is not None:
             self.health.wait_until_healthy()
-        readback = self.motion.move_to(joints)
+        readback = routed_move(self.motion, self.planner, joints)
         if self.rig.settle_s:
             if self.clock is not None:
                 self.clock.sleep(self.rig.settle_s)
@@ -193,10 +196,10 @@ def open_devices(
             require_operator(rig, prompt)
             with GPhoto2Camera(rig.camera.port) as real_camera:
                 yield RigDevices(rig, servos.motion, real_camera, None, clock,
-                                 health=servos.health, prompt=prompt)
+                                 health=servos.health, prompt=prompt, planner=planner)
             return
         assert clock is not None
         camera, holder = simulated_camera(rig, planner.kinematics, servos.true_joints, material,
                                           clock, seed)
         yield RigDevices(rig, servos.motion, camera, holder, clock, health=servos.health,
-                         seeded_camera=True, prompt=prompt)
+                         seeded_camera=True, prompt=prompt, planner=planner)

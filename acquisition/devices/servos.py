@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -102,15 +102,41 @@ class ServoRig:
         else:  # pragma: no cover - hardware
             time.sleep(seconds)
 
-    def move_to(self, joints: Mapping[str, float], *, health_wait_s: float | None = None
-                ) -> dict[str, float]:
-        """Health check (maybe a pause), guard, one sync write, readback; returns degrees."""
+    def move_to(self, joints: Mapping[str, float], *, health_wait_s: float | None = None,
+                on_route: RouteNotice | None = None) -> dict[str, float]:
+        """Health check (maybe a pause), then the move, routed round the other arm when the
+        direct one is not safe (each leg guarded, one sync write, read back); returns the
+        read-back degrees of every axis."""
         self.health.wait_until_healthy(health_wait_s)
-        return dict(self.motion.move_to(joints))
+        return routed_move(self.motion, self.planner, joints, on_route)
 
     def true_joints(self) -> dict[str, float]:
         """The simulators' TRUE joint angles (deg); simulated buses only."""
         return true_joints(self.rig, self.sims, self.axes)
+
+
+RouteNotice = Callable[[list[dict[str, float]]], None]
+"""Told the legs (joints, deg) of a move before it starts, when it has via points."""
+
+
+def routed_move(motion: MotionController, planner: Planner, joints: Mapping[str, float],
+                on_route: RouteNotice | None = None) -> dict[str, float]:
+    """Move to ``joints`` from where the axes stand: directly when that is safe, else through
+    the planner's via points (``on_route`` is told them first); every leg passes the motion
+    guard. Returns the read-back degrees of every axis.
+
+    Raises
+    ------
+    LimitError, CollisionError
+        The target is unsafe, or no route reaches it (one line; nothing moved).
+    """
+    where = motion.where_deg()
+    legs = planner.route(where, {**where, **joints})
+    if on_route is not None and len(legs) > 1:
+        on_route(legs)
+    for leg in legs:
+        motion.move_to(leg)
+    return motion.where_deg()
 
 
 def require_servos(bus: ServoBus, rig: RigConfig, bus_name: str) -> None:
@@ -185,18 +211,10 @@ def open_servos(
                     warnings.warn(message, LatencyWarning, stacklevel=3)
             require_servos(bus, rig, name)
         by_axis = {name: buses[cfg.bus] for name, cfg in rig.axes.items()}
-        names = list(axes)
-
-        def guard(targets: Mapping[str, float]) -> None:
-            # Axes not asked to move stay where they are: check the pose they will make.
-            rest = [n for n in names if n not in targets]
-            full = {**motion.positions_deg(rest), **targets} if rest else dict(targets)
-            planner.check_joints(full)
-
         timing: dict[str, Any] = {"sleep": clock.sleep} if clock is not None else {}
         if clock is not None and not clock.follows_host:  # host time says nothing of a stepped rig
             timing["monotonic"] = clock.now
-        motion = MotionController(axes.values(), by_axis, guard=guard, poll_s=MOTION_POLL_S,
+        motion = MotionController(axes.values(), by_axis, guard=planner, poll_s=MOTION_POLL_S,
                                   **timing)
         health = HealthGuard(
             axes, by_axis, health_limits,

@@ -28,6 +28,7 @@ the white-reference captures the session interleaves.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -45,11 +46,9 @@ from acquisition.geometry.kinematics.base import (
     wrap_deg_array,
 )
 from acquisition.planning import ordering
+from acquisition.planning.paths import PathChecker, PathProblem, Router, route_or_raise
 from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
 from drivers.errors import CollisionError, LimitError
-
-TRANSIT_STEP_DEG = 1.0
-"""Largest joint travel between two checked points of a move's swept path (deg)."""
 
 KEY_DECIMALS = 6
 """Poses equal to this many decimals of a degree are the same measurement."""
@@ -67,6 +66,7 @@ class Reason(StrEnum):
     UNREACHABLE = "unreachable"
     JOINT_LIMITS = "joint-limits"
     ARM_COLLISION = "arm-collision"
+    UNROUTABLE = "no-route"
     SHADOW = "shadow"
     FOOTPRINT = "footprint"
     RECIPROCAL = "reciprocal"
@@ -97,7 +97,10 @@ class PlannedPose:
     pose: Pose
     joints: Joints
     move_s: float
-    """Predicted duration of the move into this pose from the previous one."""
+    """Predicted duration of the move into this pose from the previous one (routed round the
+    other arm when the direct move is not safe)."""
+    via: tuple[Joints, ...] = ()
+    """Via points of that move when it is routed (empty: the direct move is safe)."""
 
 
 @dataclass
@@ -227,6 +230,27 @@ class Planner:
         scale = np.zeros(len(self.kinematics.joint_names))
         scale[self.array_time.axes] = 1.0 / self.array_time.accel
         self._scale = scale
+        self.paths = PathChecker(self.arm_gap_m, self.array_time.positions, self.array_time.move_s,
+                                 self.arms.light.to_m + self.arms.camera.to_m, self._arm_joints())
+        self.router = Router(self.paths, self.kinematics._lo, self.kinematics._hi,
+                             self.array_time.move_s, self.safe_mask)
+
+    def _arm_joints(self) -> list[int]:
+        """Indices of the joints that move an arm (found by turning each one a little at a
+        general configuration; a light stage has none)."""
+        if not self.kinematics.moving_arms:
+            return []
+        kin = self.kinematics
+        base = kin._lo + 0.37 * (kin._hi - kin._lo)
+        light0, camera0 = kin.arm_directions_array(base[None])
+        out = []
+        for j in range(len(base)):
+            turned = base.copy()
+            turned[j] += 1.0
+            light1, camera1 = kin.arm_directions_array(turned[None])
+            if not (np.allclose(light0, light1) and np.allclose(camera0, camera1)):
+                out.append(j)
+        return out
 
     @classmethod
     def for_plan(cls, rig: RigConfig, plan: PlanSpec) -> Planner:
@@ -258,25 +282,22 @@ class Planner:
         return self.arm_gap_m(joints) < 0
 
     def transit_ok(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """True where the moves a → b (M, J) keep the arms apart along their whole path
-        (each axis on its own trapezoid, all starting together)."""
+        """True where the moves a → b (M, J) are proven to keep the arms apart along their
+        whole path, each axis on its own trapezoid from the same start, and so does every
+        subset of the moving axes moving alone (:mod:`acquisition.planning.paths`)."""
         m = len(a)
         if not self.kinematics.moving_arms or m == 0:
             return np.ones(m, dtype=bool)
-        travel = np.nanmax(np.abs(b - a), axis=1) if a.shape[1] else np.zeros(m)
-        n_samples = np.clip(np.ceil(travel / TRANSIT_STEP_DEG).astype(np.int64), 1, 720)
-        inner = n_samples - 1  # interior points; the ends are checked as poses
-        total = int(inner.sum())
-        if total == 0:
-            return np.ones(m, dtype=bool)
-        owner = np.repeat(np.arange(m), inner)
-        first = np.cumsum(inner) - inner
-        k = np.arange(total) - first[owner] + 1
-        frac = k / n_samples[owner]
-        duration = self.array_time.move_s(a[owner], b[owner])
-        pts = self.array_time.positions(a[owner], b[owner], frac * duration)
-        bad = self.collision_mask(pts)
-        return np.bincount(owner[bad], minlength=m) == 0
+        return self.paths.move_safe(a, b)
+
+    def safe_mask(self, joints: np.ndarray) -> np.ndarray:
+        """True where joints (N, J) pass every safety constraint of :meth:`joint_problem`
+        except the soft limits (within limits by construction of the caller's points)."""
+        poses = self.kinematics.poses_array(joints)
+        high = np.nanmax(poses[:, :2], axis=1) > self.max_elevation_deg + 1e-9
+        light, camera = self.kinematics.forward_array(joints)
+        shadow = angle_between_deg_array(light, camera) < self.shadow_cone_deg
+        return ~(high | shadow | self.collision_mask(joints))
 
     def _pose_geometry_reasons(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(shadow, footprint) masks for (θi, θr, Δφ) rows (N, 3)."""
@@ -382,6 +403,9 @@ class Planner:
         if reason is Reason.ARM_COLLISION:
             return (f"every solution brings the arms within the {self.arms.clearance_m * 1e3:g} mm "
                     "clearance")
+        if reason is Reason.UNROUTABLE:
+            return ("no collision-free route from the start pose reaches it (the arms would "
+                    "have to pass through each other)")
         if reason is Reason.SHADOW:
             light, camera = directions_from_poses(pose[None])
             sep = float(angle_between_deg_array(light, camera)[0])
@@ -430,15 +454,58 @@ class Planner:
         raise err(f"refused move: {problem.detail}")
 
     def check_move(self, current: Mapping[str, float], target: Mapping[str, float]) -> None:
-        """Raise :class:`CollisionError` when the move's swept path brings the arms together."""
-        self.check_joints(target)
-        a = self.kinematics.to_array(current)[None]
-        b = self.kinematics.to_array(target)[None]
-        if not self.transit_ok(a, b)[0]:
-            raise CollisionError(
-                "refused move: the arms would collide on the way (their paths cross); "
-                "plan the sweep with `gonio plan` so that moves go round each other"
-            )
+        """The motion guard: raise unless ``target`` passes every safety constraint and the
+        move from ``current`` keeps the arms apart along its whole swept path, also when some
+        axes miss the sync write (:class:`CollisionError` naming the axes and where the arms
+        would meet)."""
+        full = {**current, **target}
+        self.check_joints(full)
+        if not self.kinematics.moving_arms:
+            return
+        names = self.kinematics.joint_names
+        problem = self.paths.problem(self.kinematics.to_array(current),
+                                     self.kinematics.to_array(full), names)
+        if problem is not None:
+            raise CollisionError(f"refused move: {self.describe(problem)}; move the other arm "
+                                 "out of the way first, or let gonio route the move")
+
+    def describe(self, problem: PathProblem) -> str:
+        """One clause: which axes, and where on the way the arms would come too close."""
+        where = ", ".join(f"{n} {v:.1f}°" for n, v in problem.at.items())
+        short = -problem.gap_m * 1e3
+        how = (f"{short:.1f} mm inside the {self.arms.clearance_m * 1e3:g} mm clearance"
+               if short > 0 else "too close to prove clear")
+        who = " and ".join(problem.moving)
+        alone = " (if the others miss the sync write)" if problem.partial else ""
+        return f"moving {who}{alone} brings the arms {how} at {where}"
+
+    def route(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
+        """The legs of a safe move from ``current`` to ``target``: ``[target]`` when the direct
+        move is safe, else via points round the other arm, then ``target``.
+
+        Raises
+        ------
+        LimitError, CollisionError
+            ``target`` itself is unsafe, or no route exists inside the joint limits (one line).
+        """
+        full = {**current, **target}
+        self.check_joints(full)
+        if not self.kinematics.moving_arms:
+            return [full]
+        return route_or_raise(self.router, current, full, self.kinematics.joint_names,
+                              self.describe)
+
+    def route_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
+        """Motion time (s) of :meth:`route` (the direct move's when it is safe or unroutable)."""
+        try:
+            legs = self.route(current, target)
+        except (LimitError, CollisionError):
+            return self.time_model.move_s(current, target)
+        total, at = 0.0, dict(current)
+        for leg in legs:
+            total += self.time_model.move_s(at, leg)
+            at = leg
+        return total
 
     def check_pose(self, pose: Pose, current: Mapping[str, float] | None = None) -> Joints | Rejection:
         """Joint targets for ``pose`` (the usable solution that moves least from ``current``),
@@ -479,6 +546,8 @@ class Planner:
         hold = {n: float(start[n]) for n in self.kinematics.free_joints}
         reason, usable, mirrored = self.screen(req, hold) if len(req) else ([], req, req)
         accepted = np.array([r is None for r in reason], dtype=bool)
+        if self.kinematics.moving_arms and accepted.any():
+            usable = self._reachable_only(start_arr, usable, accepted, reason)
         if self.reciprocal == "once" and accepted.any():
             self._reject_reciprocals(req, accepted, reason)
         t_screen = time.monotonic() - t0
@@ -489,17 +558,20 @@ class Planner:
             problem = ordering.Problem(cfg, start_arr, self.array_time.move_s, self._scale,
                                        transit_ok=self.transit_ok, reach=self.array_time.reach_deg)
             sol = ordering.solve(problem, self.time_budget_s)
-            if not sol.unsafe_moves:
+            steps, stuck = self._routed(
+                self._steps(req, idx, cfg, mir, sol.order, sol.choice, start_arr), start)
+            if not stuck:
                 break
-            # No safe way in was found for some poses: leave them out rather than risk it.
-            joints = cfg[sol.order, sol.choice[sol.order]]
-            prev = np.vstack([start_arr[None], joints[:-1]])
-            for k in np.flatnonzero(~self.transit_ok(prev, joints)):
+            # No collision-free route into these poses (the arms cannot pass each other):
+            # leave them out, order the rest again.
+            for k in stuck:
                 i = idx[sol.order[k]]
                 accepted[i] = False
-                reason[i] = Reason.ARM_COLLISION
+                reason[i] = Reason.UNROUTABLE
+        else:
+            raise CollisionError("the plan's poses cannot be ordered so that every move is safe: "
+                                 "narrow its ranges (`gonio plan --out plan.png` shows them)")
         t_order = time.monotonic() - t0 - t_screen
-        steps = self._steps(req, idx, cfg, mir, sol.order, sol.choice, start_arr)
         naive = self._naive_motion_s(req[idx], cfg, start_arr)
         use_hk = self.bound == "held-karp" or (
             self.bound == "auto" and problem.n <= HELD_KARP_AUTO_MAX)
@@ -519,12 +591,29 @@ class Planner:
             reference_s=self._reference_s(steps, start),
         )
         sweep.extra.update({
+            "routed_moves": float(sum(1 for s in steps if s.via)),
             "unsafe_moves": float(sol.unsafe_moves),
             "screen_s": t_screen,
             "order_s": t_order,
             "plan_s": time.monotonic() - t0,
         })
         return sweep
+
+    def _reachable_only(self, start: np.ndarray, usable: np.ndarray, accepted: np.ndarray,
+                        reason: list[Reason | None]) -> np.ndarray:
+        """``usable`` (N, K, J) without the solutions no collision-free route joins to the start
+        (arms that would have to pass through each other); poses left with none are rejected
+        as arm collisions."""
+        idx = np.flatnonzero(accepted)
+        cfg = usable[idx]
+        flat = cfg.reshape(-1, cfg.shape[-1])
+        ok = self.router.reachable(start, flat).reshape(cfg.shape[:2])
+        usable = usable.copy()
+        usable[idx] = np.where(ok[..., None], cfg, np.nan)
+        for i in idx[~ok.any(axis=1)]:
+            accepted[i] = False
+            reason[i] = Reason.UNROUTABLE
+        return usable
 
     def _rejections(self, req: np.ndarray, reason: list[Reason | None]) -> list[Rejection]:
         """Rejection records, with the per-pose detail computed only where it varies."""
@@ -534,7 +623,8 @@ class Planner:
         for i, r in enumerate(reason):
             if r is None:
                 continue
-            if r in (Reason.DUPLICATE, Reason.RECIPROCAL, Reason.UNREACHABLE, Reason.ARM_COLLISION):
+            if r in (Reason.DUPLICATE, Reason.RECIPROCAL, Reason.UNREACHABLE, Reason.ARM_COLLISION,
+                     Reason.UNROUTABLE):
                 detail = fixed.get(r)
                 if detail is None:
                     detail = fixed[r] = self._detail(r, req[i])
@@ -617,24 +707,105 @@ class Planner:
         result = self.check_pose(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))
         return None if isinstance(result, Rejection) else result
 
+    def leg_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
+        """Predicted time (s) of the move as the rig will make it: routed when the direct move
+        is unsafe, each extra leg adding one bus cycle (its confirming polls)."""
+        legs = self._legs(current, target)
+        total, at = 0.0, dict(current)
+        for leg in legs:
+            total += self.time_model.move_s(at, leg)
+            at = leg
+        return total + (len(legs) - 1) * self.time_model.costs.bus_cycle_s
+
+    def _legs(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
+        try:
+            return self.route(current, target)
+        except (LimitError, CollisionError):
+            return [dict(target)]
+
+    def _routed(self, steps: list[PlannedPose], start: Mapping[str, float]
+                ) -> tuple[list[PlannedPose], list[int]]:
+        """``steps`` with every move the session will make (white references included) checked
+        against the guard and, where the direct move is not safe, routed round the other arm
+        (via points and time); and the steps no route reaches.
+
+        Raises
+        ------
+        CollisionError
+            The white reference has no safe route: nothing can be captured.
+        """
+        if not self.kinematics.moving_arms or not steps:
+            return steps, []
+        ref = self.reference_joints()
+        # (from, to, the step entered or None for a reference, the step it leaves). A step's
+        # move_s is the move from the previous pose; the session also goes by the reference.
+        legs: list[tuple[Mapping[str, float], Mapping[str, float], int | None, int | None]] = []
+        if ref is not None:
+            legs += [(start, ref, None, None), (ref, steps[0].joints, None, 0)]
+        legs.append((start, steps[0].joints, 0, None))
+        every = self.reference_every
+        for i in range(1, len(steps)):
+            legs.append((steps[i - 1].joints, steps[i].joints, i, None))
+            if ref is not None and every and i % every == 0:
+                legs += [(steps[i - 1].joints, ref, None, i - 1), (ref, steps[i].joints, None, i)]
+        if ref is not None:
+            legs.append((steps[-1].joints, ref, None, len(steps) - 1))
+        names = self.kinematics.joint_names
+        a = np.array([[leg[0][n] for n in names] for leg in legs])
+        b = np.array([[leg[1][n] for n in names] for leg in legs])
+        out, stuck = list(steps), []
+        for k in np.flatnonzero(~self.transit_ok(a, b)):
+            cur, target, entered, other = legs[k]
+            try:
+                route = self.route(cur, target)
+            except CollisionError as exc:
+                culprit = entered if entered is not None else other
+                if culprit is None:
+                    raise CollisionError(f"the white reference cannot be reached safely from "
+                                         f"the start: {exc}") from None
+                stuck.append(culprit)
+                continue
+            if entered is not None:
+                out[entered] = dataclasses.replace(out[entered], via=tuple(route[:-1]),
+                                                   move_s=self.leg_s(cur, target))
+        return out, sorted(set(stuck))
+
+    def unsafe_moves(self, sweep_steps: Sequence[PlannedPose], start: Mapping[str, float]) -> int:
+        """How many moves of the session (white references included) the guard would refuse
+        along their route: 0 for every plan :meth:`plan` returns."""
+        ref = self.reference_joints()
+        points = ([start, ref] if ref is not None else [start]) + [s.joints for s in sweep_steps]
+        if ref is not None:
+            points.append(ref)
+        bad = 0
+        for a, b in zip(points, points[1:], strict=False):
+            try:
+                at = dict(a)
+                for leg in self.route(a, b):
+                    self.check_move(at, leg)
+                    at = leg
+            except (LimitError, CollisionError):
+                bad += 1
+        return bad
+
     def _reference_s(self, steps: Sequence[PlannedPose], start: Mapping[str, float]) -> float:
         """Time of the white-reference steps the session interleaves: first, every
-        ``reference_every`` poses, and last."""
+        ``reference_every`` poses, and last (each move routed as the rig will make it)."""
         ref = self.reference_joints()
         if ref is None:
             return 0.0
-        tm, over = self.time_model, self.time_model.step_overhead_s()
-        total = tm.move_s(start, ref) + over
+        leg, over = self.leg_s, self.time_model.step_overhead_s()
+        total = leg(start, ref) + over
         if not steps:
             return total
-        total -= tm.move_s(start, steps[0].joints)  # the first pose is reached from the reference
-        total += tm.move_s(ref, steps[0].joints)
+        total -= steps[0].move_s  # the first pose is reached from the reference
+        total += leg(ref, steps[0].joints)
         every = self.reference_every
         if every:
             for i in range(every, len(steps), every):
                 a, b = steps[i - 1].joints, steps[i].joints
-                total += tm.move_s(a, ref) + over + tm.move_s(ref, b) - tm.move_s(a, b)
-        return total + tm.move_s(steps[-1].joints, ref) + over
+                total += leg(a, ref) + over + leg(ref, b) - steps[i].move_s
+        return total + leg(steps[-1].joints, ref) + over
 
 
 def serpentine(poses: Sequence[Pose]) -> list[Pose]:

@@ -4,12 +4,13 @@
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import ExitStack, contextmanager
+from contextlib import contextmanager
 
 from acquisition.config.rig import RigConfig
 from drivers.dynamixel import Axis
 from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
+from simulators.dynamixel.rig import SimRig
 
 
 def make_clock(rig: RigConfig) -> SimClock:
@@ -38,27 +39,24 @@ def start_simulated_buses(
     sim_faults: Sequence[str] = (),
     seed: int = 0,
 ) -> Iterator[dict[str, SimServoBus]]:
-    """Start a simulator for every ``simulated = true`` bus, each servo at ``start_ticks[axis]``.
+    """Start a simulator for every ``simulated = true`` bus, each servo at ``start_ticks[axis]``,
+    with the rig's solid parts: arms that touch stall and trip on overload, as hardware would
+    (:class:`simulators.dynamixel.rig.SimRig`, its own model of the arms).
 
     The servos are deaf at any other baud rate than the rig file's (``strict_baud``), like a
-    real bus, so ``gonio scan`` finds them at that rate only.
+    real bus, so ``gonio scan`` finds them at that rate only. Collisions are recorded on the
+    buses (``SimServoBus.sim_collisions()``).
     """
-    with ExitStack() as stack:
-        sims: dict[str, SimServoBus] = {}
-        for name, bus_cfg in rig.buses.items():
-            if not bus_cfg.simulated:
-                continue
-            on_bus = [a for a in rig.axes.values() if a.bus == name]
-            sim = SimServoBus(
-                [a.servo_id for a in on_bus], baud=bus_cfg.baud, clock=clock,
-                faults=list(sim_faults), seed=seed, strict_baud=True,
+    names = [n for n, b in rig.buses.items() if b.simulated]
+    if not names:
+        yield {}
+        return
+    with SimRig(rig.raw, clock=clock, faults=list(sim_faults), seed=seed, strict_baud=True,
                 wire_time="clock" if isinstance(clock, SteppedClock) else False,
-                positions={a.servo_id: start_ticks[a.name] for a in on_bus},
-            )
-            sim.start()
-            stack.callback(sim.stop)
-            sims[name] = sim
-        yield sims
+                positions_ticks={a: start_ticks[a] for a, cfg in rig.axes.items()
+                                 if cfg.bus in names},
+                buses=names) as sim_rig:
+        yield dict(sim_rig.buses)
 
 
 def true_joints(rig: RigConfig, sims: Mapping[str, SimServoBus], axes: Mapping[str, Axis]

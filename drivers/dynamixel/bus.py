@@ -608,12 +608,13 @@ class ServoBus:
         reading the goal back)."""
         self.sync_write(Addr.GOAL_POSITION, 4, goals)
 
-    def resend_goals(self, goals: Mapping[int, int]) -> None:
-        """Send again, in ONE sync write, goals (ticks) that read back showed never arrived;
-        counted as resends."""
+    def resend_goals(self, goals: Mapping[int, int], lost: Iterable[int] | None = None) -> None:
+        """Send again, in ONE sync write, goals (ticks) of a move whose read-back showed some
+        never arrived; the servos in ``lost`` (default: all) are counted as resends."""
+        lost = list(goals if lost is None else lost)
         with self._lock:
-            self._count(goals, "resends")
-            self.stats["resends"] += len(goals)
+            self._count(lost, "resends")
+            self.stats["resends"] += len(lost)
         self.sync_write(Addr.GOAL_POSITION, 4, goals)
 
     def write_goal(self, servo_id: int, goal: int, *, resend: bool = False) -> None:

@@ -2,8 +2,9 @@
 
 :meth:`MotionController.move_to` is the only way gonio moves the rig:
 
-1. the guard (the planner's limits / collision / shadow check) sees the targets first and may
-   refuse them by raising; a controller cannot be built without one;
+1. the guard (:class:`MotionGuard`: the planner's limits, collision and swept-path check) sees
+   where every axis stands (read back, or known from the last confirmed move) and the targets
+   first, and may refuse by raising; a controller cannot be built without one;
 2. every target is converted with the axis' soft limits (:class:`~drivers.errors.LimitError`,
    nothing sent);
 3. torque and latched hardware errors are checked (one sync read per bus);
@@ -12,14 +13,17 @@
    so the goal read-back costs no extra round trip) until every axis is within
    ``tolerance_ticks`` of its goal with ``moving == 0`` — the move is confirmed by readback,
    never by acknowledgement. A goal that reads back different never arrived (a sync write has
-   no reply, so a lost or garbled one is silent): it is resent, by sync write up to
-   ``goal_resends - 1`` times, then once by an acknowledged WRITE, whose status packet proves
-   arrival. A servo that acknowledged and still holds another value clamps it (its EEPROM
-   position limits): :class:`~drivers.errors.LimitError`. One whose acknowledged write gets no
-   valid answer: :class:`~drivers.errors.CommunicationError` naming axis and port;
+   no reply, so a lost or garbled one is silent) and the other axes are moving alone: the
+   move is partial. Every axis of it stops (braking), and from the read-back pose the guard
+   checks the move again before all goals are sent again, by sync write up to
+   ``goal_resends - 1`` times, then by acknowledged WRITEs, whose status packets prove arrival.
+   A servo that acknowledged and still holds another value clamps it (its EEPROM position
+   limits): :class:`~drivers.errors.LimitError`. One whose acknowledged write gets no valid
+   answer: :class:`~drivers.errors.CommunicationError` naming axis and port;
 6. on a hardware error, a timeout or Ctrl-C, all axes stop at once (goal := braking point,
    torque stays on; the stop goals are read back and a lost one is written again, acknowledged)
-   before the error propagates; :meth:`MotionController.stop` called from another thread ends
+   before the error propagates; braking goals pass the guard too (an axis whose braking path it
+   refuses stops where it is); :meth:`MotionController.stop` called from another thread ends
    an in-flight move with :class:`~drivers.errors.SafetyStop`.
 
 Resends and retries are counted per axis (:meth:`MotionController.link_stats`).
@@ -31,13 +35,31 @@ import contextlib
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
+from typing import Protocol, runtime_checkable
 
 from drivers.dynamixel.axis import Axis
 from drivers.dynamixel.bus import Addr, ServoBus, ServoLinkStats
 from drivers.dynamixel.codes import MotionTimeoutError, ServoSilentError, TorqueOffError
-from drivers.errors import CommunicationError, ConfigError, GonioError, LimitError, SafetyStop
+from drivers.errors import (
+    CollisionError,
+    CommunicationError,
+    ConfigError,
+    GonioError,
+    LimitError,
+    SafetyStop,
+)
 
-Guard = Callable[[Mapping[str, float]], object]
+
+@runtime_checkable
+class MotionGuard(Protocol):
+    """What checks every goal before it reaches a servo (implemented by gonio's planner)."""
+
+    def check_move(self, start_deg: Mapping[str, float], targets_deg: Mapping[str, float]) -> None:
+        """Raise (:class:`~drivers.errors.LimitError`, :class:`~drivers.errors.CollisionError`)
+        unless moving from ``start_deg`` (every axis, where it stands) to ``targets_deg`` (the
+        axes to move) is safe along the whole swept path, also for every subset of the moving
+        axes moving alone (a sync write one servo missed)."""
+        ...
 
 
 class MotionController:
@@ -50,8 +72,9 @@ class MotionController:
     buses:
         ``{axis name: ServoBus}``, or one bus for every axis.
     guard:
-        Called as ``guard({axis: deg})`` with exactly the requested targets before anything is
-        sent; it refuses a move by raising (``LimitError``, ``CollisionError``).
+        A :class:`MotionGuard`: ``guard.check_move(start, targets)`` before any goal is sent,
+        braking goals included; it refuses a move by raising (``LimitError``,
+        ``CollisionError``).
     tolerance_ticks:
         How close (ticks) the read-back position must be to the goal.
     poll_s:
@@ -69,7 +92,7 @@ class MotionController:
         self,
         axes: Iterable[Axis],
         buses: Mapping[str, ServoBus] | ServoBus,
-        guard: Guard,
+        guard: MotionGuard,
         *,
         tolerance_ticks: int = 3,
         poll_s: float = 0.01,
@@ -77,10 +100,10 @@ class MotionController:
         monotonic: Callable[[], float] = time.monotonic,
         goal_resends: int = 3,
     ) -> None:
-        if guard is None or not callable(guard):
+        if not isinstance(guard, MotionGuard):
             raise ConfigError(
-                "MotionController needs a guard: a callable that checks targets (limits, "
-                "collisions, shadowing) before any move is sent"
+                "MotionController needs a guard: an object whose check_move(start, targets) "
+                "checks limits, collisions and the swept path before any goal is sent"
             )
         self._axes: dict[str, Axis] = {}
         for axis in axes:
@@ -113,6 +136,8 @@ class MotionController:
         self.poll_s = poll_s
         self._sleep = sleep
         self._monotonic = monotonic
+        self._known: dict[str, float] | None = None
+        """Where every axis stands (deg), from the last confirmed move; None: read it."""
 
     @property
     def axes(self) -> dict[str, Axis]:
@@ -134,6 +159,7 @@ class MotionController:
 
     def set_torque(self, on: bool, names: Iterable[str] | None = None) -> None:
         """Torque on/off for the named axes (all if None)."""
+        self._known = None  # an axis without torque may be moved by hand
         for bus, group in self._groups(names or self._axes).items():
             bus.set_torque([self._axes[n].servo_id for n in group], on)
 
@@ -155,6 +181,12 @@ class MotionController:
             for n in group:
                 out[n] = self._axes[n].ticks_to_deg(ticks[self._axes[n].servo_id])
         return out
+
+    def where_deg(self) -> dict[str, float]:
+        """Where every axis stands (deg): known from the last confirmed move, else read back."""
+        if self._known is None:
+            self._known = self.positions_deg()
+        return dict(self._known)
 
     # ------------------------------------------------------------------ moves
     def move_to(self, targets_deg: Mapping[str, float], timeout_s: float = 30.0
@@ -178,22 +210,26 @@ class MotionController:
             raise ConfigError(f"unknown axes {unknown}; the rig has {sorted(self._axes)}")
         if not targets:
             return {}
-        self.guard(dict(targets))
-        goals = {n: self._axes[n].deg_to_ticks(d) for n, d in targets.items()}
+        goals = {n: self._axes[n].deg_to_ticks(d) for n, d in targets.items()}  # soft limits
+        self.guard.check_move(self.where_deg(), dict(targets))
         groups = self._groups(targets)
         self._check_ready(groups)
         generation = self._stops
+        self._known = None  # until the move is confirmed
         try:
             with self._goal_lock:
                 self._check_generation(generation, goals)
                 for bus, names in groups.items():
                     bus.write_goals({self._axes[n].servo_id: goals[n] for n in names})
-            return self._settle(groups, goals, timeout_s, generation)
+            reached = self._settle(groups, goals, targets, timeout_s, generation)
         except SafetyStop:
             raise  # stop() already ran
         except (GonioError, KeyboardInterrupt):
             self._stop_quietly()
             raise
+        rest = [n for n in self._axes if n not in reached]
+        self._known = {**(self.positions_deg(rest) if rest else {}), **reached}
+        return reached
 
     def _check_ready(self, groups: Mapping[ServoBus, list[str]]) -> None:
         for bus, names in groups.items():
@@ -209,46 +245,41 @@ class MotionController:
                     )
 
     def _settle(self, groups: Mapping[ServoBus, list[str]], goals: Mapping[str, int],
-                timeout_s: float, generation: int) -> dict[str, float]:
+                targets: Mapping[str, float], timeout_s: float, generation: int
+                ) -> dict[str, float]:
         deadline = self._monotonic() + timeout_s
-        resent: dict[str, int] = {}
+        attempts = 0
         tol = self.tolerance_ticks
         while True:
             self._check_generation(generation, goals)
             done = True
             readback: dict[str, int] = {}
             lagging: list[str] = []
+            lost: dict[str, tuple[ServoBus, int]] = {}
             for bus, names in groups.items():
                 samples = bus.read_motion([self._axes[n].servo_id for n in names])
-                again: dict[int, int] = {}
-                acknowledged: dict[int, int] = {}
                 for n in names:
                     axis, s = self._axes[n], samples[self._axes[n].servo_id]
                     readback[n] = s.position
                     if s.goal != goals[n]:
-                        sent = resent.get(n, 0)
-                        if sent >= self.goal_resends:
-                            raise LimitError(
-                                f"{bus.describe(axis.servo_id)}: the servo holds goal {s.goal} "
-                                f"instead of {goals[n]} ticks although it acknowledged the "
-                                f"write; its Min/Max Position Limit (EEPROM 52/48) clamps it — "
-                                f"widen them or narrow the axis limits in the rig file"
-                            )
-                        resent[n] = sent + 1
-                        last = sent + 1 == self.goal_resends
-                        (acknowledged if last else again)[axis.servo_id] = goals[n]
+                        lost[n] = (bus, axis.servo_id)
                     if s.moving or abs(s.position - goals[n]) > tol:
                         done = False
                         lagging.append(f"{n} at {axis.ticks_to_deg(s.position):.2f}° "
                                        f"(goal {axis.ticks_to_deg(goals[n]):.2f}°)")
-                if again or acknowledged:
-                    with self._goal_lock:
-                        self._check_generation(generation, goals)
-                        if again:
-                            bus.resend_goals(again)
-                        for sid, goal in acknowledged.items():
-                            self._write_goal_acknowledged(bus, sid, goal)
-                    done = False
+            if lost:
+                if attempts >= self.goal_resends:
+                    bus, sid = next(iter(lost.values()))
+                    raise LimitError(
+                        f"{bus.describe(sid)}: the servo holds another goal than "
+                        f"{goals[next(iter(lost))]} ticks although it acknowledged the write; "
+                        f"its Min/Max Position Limit (EEPROM 52/48) clamps it — widen them or "
+                        f"narrow the axis limits in the rig file"
+                    )
+                attempts += 1
+                self._restart_partial(groups, goals, targets, lost, generation,
+                                      acknowledged=attempts == self.goal_resends)
+                continue
             if done:
                 return {n: self._axes[n].ticks_to_deg(t) for n, t in readback.items()}
             if self._monotonic() > deadline:
@@ -258,16 +289,64 @@ class MotionController:
                 )
             self._sleep(self.poll_s)
 
-    def _write_goal_acknowledged(self, bus: ServoBus, servo_id: int, goal: int) -> None:
+    def _restart_partial(self, groups: Mapping[ServoBus, list[str]], goals: Mapping[str, int],
+                         targets: Mapping[str, float], lost: Mapping[str, tuple[ServoBus, int]],
+                         generation: int, *, acknowledged: bool) -> None:
+        """A partial move (some goals never arrived): stop every axis, wait until all are at
+        rest, check the move again from the read-back pose, then send every goal again (the
+        lost ones counted as resends; ``acknowledged``: by WRITEs whose replies prove arrival)."""
+        with self._goal_lock:
+            self._check_generation(generation, goals)
+            try:
+                self._stop_all()
+            except CommunicationError:
+                name = next(iter(lost))
+                bus, sid = lost[name]
+                raise self._never_arrived(bus, sid, goals[name]) from None
+        self._wait_at_rest(groups, generation, goals)
+        self.guard.check_move(self.positions_deg(), dict(targets))
+        with self._goal_lock:
+            self._check_generation(generation, goals)
+            for bus, names in groups.items():
+                ids = {self._axes[n].servo_id: goals[n] for n in names}
+                resent = {self._axes[n].servo_id for n in names if n in lost}
+                if acknowledged:
+                    for sid, goal in ids.items():
+                        self._write_goal_acknowledged(bus, sid, goal, resend=sid in resent)
+                    continue
+                bus.resend_goals(ids, lost=resent)
+
+    def _wait_at_rest(self, groups: Mapping[ServoBus, list[str]], generation: int,
+                      goals: Mapping[str, int], timeout_s: float = 10.0) -> None:
+        """Poll until no axis of the move is moving (after a stop)."""
+        deadline = self._monotonic() + timeout_s
+        while True:
+            self._check_generation(generation, goals)
+            moving = []
+            for bus, names in groups.items():
+                samples = bus.read_motion([self._axes[n].servo_id for n in names])
+                moving += [n for n in names if samples[self._axes[n].servo_id].moving]
+            if not moving:
+                return
+            if self._monotonic() > deadline:
+                raise MotionTimeoutError(f"{', '.join(moving)} still moving {timeout_s:g} s "
+                                         "after a stop; check the servos")
+            self._sleep(self.poll_s)
+
+    def _write_goal_acknowledged(self, bus: ServoBus, servo_id: int, goal: int, *,
+                                 resend: bool = True) -> None:
         try:
-            bus.write_goal(servo_id, goal, resend=True)
+            bus.write_goal(servo_id, goal, resend=resend)
         except ServoSilentError:
-            raise CommunicationError(
-                f"{bus.describe(servo_id)}: the goal write ({goal} ticks) never arrived: "
-                f"{self.goal_resends} sync writes lost and the acknowledged write got no valid "
-                f"answer after {bus.retries + 1} attempts; check the bus cable, termination and "
-                f"power (`gonio info` shows each axis' retries); all axes stopped"
-            ) from None
+            raise self._never_arrived(bus, servo_id, goal) from None
+
+    def _never_arrived(self, bus: ServoBus, servo_id: int, goal: int) -> CommunicationError:
+        return CommunicationError(
+            f"{bus.describe(servo_id)}: the goal write ({goal} ticks) never arrived: sync "
+            f"writes lost and acknowledged writes got no valid answer after {bus.retries + 1} "
+            f"attempts; check the bus cable, termination and power (`gonio info` shows each "
+            f"axis' retries); all axes stopped"
+        )
 
     def _check_generation(self, generation: int, goals: Mapping[str, int]) -> None:
         if self._stops != generation:
@@ -287,6 +366,7 @@ class MotionController:
         """
         with self._goal_lock:
             self._stops += 1
+            self._known = None
             return self._stop_all()
 
     def _stop_all(self) -> dict[str, float]:
@@ -317,6 +397,7 @@ class MotionController:
                 for n in names
                 for sid in (self._axes[n].servo_id,)
             }
+        self._guard_braking(groups, present, goals)
         for bus, ticks in goals.items():
             try:
                 bus.write_goals(ticks)
@@ -338,6 +419,28 @@ class MotionController:
                 if bus in goals:
                     out[n] = self._axes[n].ticks_to_deg(goals[bus][self._axes[n].servo_id])
         return out
+
+    def _guard_braking(self, groups: Mapping[ServoBus, list[str]],
+                       present: Mapping[ServoBus, Mapping[int, int]],
+                       goals: dict[ServoBus, dict[int, int]]) -> None:
+        """Braking goals pass the guard like any goal; where it refuses them (or cannot judge:
+        a bus did not answer), every axis stops where it stands instead (goal := present)."""
+        names = {n: bus for bus, group in groups.items() for n in group}
+        if any(bus not in present for bus in names.values()):
+            stop_here = True
+        else:
+            start = {n: self._axes[n].ticks_to_deg(present[b][self._axes[n].servo_id])
+                     for n, b in names.items()}
+            braking = {n: self._axes[n].ticks_to_deg(goals[b][self._axes[n].servo_id])
+                       for n, b in names.items()}
+            try:
+                self.guard.check_move(start, braking)
+                stop_here = False
+            except (LimitError, CollisionError):
+                stop_here = True
+        if stop_here:
+            for bus in goals:
+                goals[bus] = dict(present[bus])
 
     @staticmethod
     def _braking_goal(axis: Axis, position_ticks: int, velocity_units: int, accel_units: int) -> int:

@@ -141,12 +141,6 @@ def bracket_signal(
     return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
 
 
-def reference_curve(refs: list[FrameSignal]) -> Callable[[int], np.ndarray]:
-    """White-reference signal at any step, interpolated linearly between its captures."""
-    at, _ = reference_curves(refs)
-    return at
-
-
 def reference_curves(
     refs: list[FrameSignal],
 ) -> tuple[Callable[[int], np.ndarray], Callable[[int], np.ndarray]]:

@@ -200,54 +200,94 @@ def bracket(
     """
     if not policy.step > 1:
         raise CalibrationError(f"bracket step must be > 1, got {policy.step}")
-    t = min(max(start_exposure_s, policy.min_exposure_s), policy.max_exposure_s)
-    exposures: list[float] = []
-    paths: list[Path] = []
-    images: list[LinearImage] = []
+    frames = _BracketFrames(capture_fn, noise, policy, dark_for, flat)
+    _shorten_until_unclipped(frames, roi, policy, start_exposure_s)
+    merged, snr = _lengthen_until_exposed(frames, roi, noise, policy)
+    if bad_pixels is not None:
+        merged = _without_bad_pixels(merged, bad_pixels)
+        snr = min_snr(merged, roi)
+    return Bracket(tuple(frames.exposures_s), tuple(frames.paths), merged, snr,
+                   snr >= policy.target_snr)
 
-    def take(exposure: float) -> LinearImage:
-        path = Path(capture_fn(exposure))
+
+class _BracketFrames:
+    """The frames of one bracket so far: takes and linearizes one per requested exposure."""
+
+    def __init__(
+        self,
+        capture_fn: Callable[[float], Path],
+        noise: NoiseModel,
+        policy: BracketPolicy,
+        dark_for: Callable[[float, float], np.ndarray | None] | None,
+        flat: np.ndarray | None,
+    ) -> None:
+        self.capture_fn, self.noise, self.policy = capture_fn, noise, policy
+        self.dark_for, self.flat = dark_for, flat
+        self.exposures_s: list[float] = []
+        self.paths: list[Path] = []
+        self.images: list[LinearImage] = []
+
+    def take(self, exposure_s: float) -> LinearImage:
+        """Capture at ``exposure_s`` (s), linearize with variances, and keep the frame."""
+        path = Path(self.capture_fn(exposure_s))
         frame = load_raw(path)
-        used = frame.exposure_s or exposure
-        dark = dark_for(used, frame.iso) if dark_for is not None and frame.iso else None
+        used = frame.exposure_s or exposure_s
+        dark = (self.dark_for(used, frame.iso)
+                if self.dark_for is not None and frame.iso else None)
         # The file's exposure is what the camera really used (a real body rounds to its
         # nearest shutter speed); the requested one only where the file has none.
-        image = linearize(frame, dark=dark, flat=flat, noise=noise,
-                          saturation=policy.saturation,
-                          exposure_s=None if frame.exposure_s else exposure)
-        exposures.append(exposure)
-        paths.append(path)
-        images.append(image)
+        image = linearize(frame, dark=dark, flat=self.flat, noise=self.noise,
+                          saturation=self.policy.saturation,
+                          exposure_s=None if frame.exposure_s else exposure_s)
+        self.exposures_s.append(exposure_s)
+        self.paths.append(path)
+        self.images.append(image)
         return image
 
-    image = take(t)
+
+def _shorten_until_unclipped(
+    frames: _BracketFrames, roi: RoiBox, policy: BracketPolicy, start_exposure_s: float
+) -> None:
+    """Take frames from the start exposure (clamped to the limits), dividing it by the step
+    until the ROI has no clipped cell; CalibrationError at the shortest exposure or budget."""
+    t = min(max(start_exposure_s, policy.min_exposure_s), policy.max_exposure_s)
+    image = frames.take(t)
     while not _roi(image.valid, roi).all():
-        if t / policy.step < policy.min_exposure_s or len(images) >= policy.max_frames:
+        if t / policy.step < policy.min_exposure_s or len(frames.images) >= policy.max_frames:
             raise CalibrationError(
                 f"the region of interest still clips at {t:g} s; dim the light, stop down or "
                 "allow shorter exposures"
             )
         t /= policy.step
-        image = take(t)
-    merged = merge(images, noise)  # clipped samples of the longer frames weigh 0
+        image = frames.take(t)
+
+
+def _lengthen_until_exposed(
+    frames: _BracketFrames, roi: RoiBox, noise: NoiseModel, policy: BracketPolicy
+) -> tuple[LinearImage, float]:
+    """Merge, then multiply the longest exposure by the step while the darkest ROI pixel is
+    below the target SNR (within the exposure limit and frame budget); the merge and its SNR."""
+    merged = merge(frames.images, noise)  # clipped samples of the longer frames weigh 0
     snr = min_snr(merged, roi)
-    longest = max(exposures)
+    longest = max(frames.exposures_s)
     while (snr < policy.target_snr and longest * policy.step <= policy.max_exposure_s
-           and len(images) < policy.max_frames):
+           and len(frames.images) < policy.max_frames):
         longest *= policy.step
-        take(longest)
-        merged = merge(images, noise)
+        frames.take(longest)
+        merged = merge(frames.images, noise)
         snr = min_snr(merged, roi)
-    if bad_pixels is not None:
-        bad = bad_pixels
-        if bad.shape != merged.valid.shape:
-            bad = bad.reshape(bad.shape[0] // 2, 2, bad.shape[1] // 2, 2).any(axis=(1, 3))
-        valid = merged.valid & ~bad
-        merged = LinearImage(
-            rgb=np.where(valid[..., None], merged.rgb, np.nan), valid=valid,
-            variance=np.where(valid[..., None], merged.variance, np.nan),
-            units=merged.units, scale=merged.scale, exposure_s=merged.exposure_s,
-            iso=merged.iso, f_number=merged.f_number,
-        )
-        snr = min_snr(merged, roi)
-    return Bracket(tuple(exposures), tuple(paths), merged, snr, snr >= policy.target_snr)
+    return merged, snr
+
+
+def _without_bad_pixels(merged: LinearImage, bad_pixels: np.ndarray) -> LinearImage:
+    """The merge with the superpixels on a pixel or superpixel bad-pixel map made invalid."""
+    bad = bad_pixels
+    if bad.shape != merged.valid.shape:
+        bad = bad.reshape(bad.shape[0] // 2, 2, bad.shape[1] // 2, 2).any(axis=(1, 3))
+    valid = merged.valid & ~bad
+    return LinearImage(
+        rgb=np.where(valid[..., None], merged.rgb, np.nan), valid=valid,
+        variance=np.where(valid[..., None], merged.variance, np.nan),
+        units=merged.units, scale=merged.scale, exposure_s=merged.exposure_s,
+        iso=merged.iso, f_number=merged.f_number,
+    )

@@ -100,7 +100,29 @@ class LinearImage:
 
 
 def _threads() -> int:
+    """Worker threads for the row blocks: up to 4, one per core."""
     return max(1, min(4, os.cpu_count() or 1))
+
+
+@dataclass(frozen=True, eq=False)
+class _Job:
+    """Everything one block of superpixel rows needs: inputs, checked options, outputs."""
+
+    mosaic: np.ndarray
+    width_sp: int
+    black_dn: np.ndarray
+    threshold_dn: np.ndarray
+    positions: dict[str, list[tuple[int, int]]]
+    dark: np.ndarray | None
+    flat: np.ndarray | None
+    flat_per_pixel: bool
+    bad_pixels: np.ndarray | None
+    bad_per_pixel: bool
+    noise_arrays: tuple[np.ndarray, np.ndarray] | None
+    scale: float
+    rgb: np.ndarray
+    valid: np.ndarray
+    variance: np.ndarray | None
 
 
 def linearize(
@@ -142,144 +164,16 @@ def linearize(
     CalibrationError
         Missing exposure/ISO/f-number metadata, or calibration data of the wrong shape.
     """
-    where = frame.path
-    t = exposure_s if exposure_s is not None else frame.exposure_s
-    if t is None or not (math.isfinite(t) and t > 0):
-        raise CalibrationError(
-            f"{where}: exposure time unknown or not positive ({t}); pass exposure_s explicitly"
-        )
+    t = _exposure_time_s(frame, exposure_s)
     if not 0 < saturation <= 1:
         raise CalibrationError(f"saturation fraction must be in (0, 1], got {saturation}")
-    scale = 1.0 / t
-    units = "DN/s"
-    if normalize_iso:
-        if frame.iso is None:
-            raise CalibrationError(f"{where}: ISO unknown, cannot normalise by ISO/100")
-        scale *= 100.0 / frame.iso
-        units += " at ISO 100"
-    if normalize_f_number:
-        if frame.f_number is None:
-            raise CalibrationError(f"{where}: f-number unknown, cannot normalise by f-number²")
-        scale *= frame.f_number**2
-        units += " · f²"
-
-    mosaic = frame.mosaic
-    hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
-    if dark is not None and dark.shape != mosaic.shape:
-        raise CalibrationError(
-            f"{where}: master dark is {dark.shape[0]}×{dark.shape[1]} px but the frame is "
-            f"{mosaic.shape[0]}×{mosaic.shape[1]}; use a dark taken with this camera"
-        )
-    flat_per_pixel = flat is not None and flat.shape == mosaic.shape
-    if flat is not None and not flat_per_pixel and flat.shape != (hh, ww, 3):
-        raise CalibrationError(
-            f"{where}: flat field shape {flat.shape} fits neither the mosaic {mosaic.shape} "
-            f"nor its superpixels {(hh, ww, 3)}"
-        )
-    bad_per_pixel = bad_pixels is not None and bad_pixels.shape == mosaic.shape
-    if bad_pixels is not None and not bad_per_pixel and bad_pixels.shape != (hh, ww):
-        raise CalibrationError(
-            f"{where}: bad-pixel map shape {bad_pixels.shape} fits neither the mosaic "
-            f"{mosaic.shape} nor its superpixels {(hh, ww)}"
-        )
-    noise_arrays = None
-    if noise is not None:
-        if noise.iso is not None and frame.iso is not None and noise.iso != frame.iso:
-            raise CalibrationError(
-                f"{where}: noise model is for ISO {noise.iso:g} but the frame is ISO "
-                f"{frame.iso:g}; measure a noise model at this ISO"
-            )
-        noise_arrays = noise.per_colour()
-
-    black = frame.black_per_position.astype(np.float32)
-    threshold = (
-        frame.black_per_position
-        + saturation * (frame.white_per_position - frame.black_per_position)
-    ).astype(np.float32)
-    # CFA positions (row, col) of each colour, e.g. RGGB: R (0,0); G (0,1),(1,0); B (1,1).
-    positions = {c: [divmod(i, 2) for i, p in enumerate(frame.cfa_pattern) if p == c]
-                 for c in COLOURS}
-
-    rgb = np.empty((hh, ww, 3))
-    valid = np.empty((hh, ww), dtype=bool)
-    variance = np.empty((hh, ww, 3)) if noise_arrays is not None else None
-
-    def plane(arr: np.ndarray, pos: tuple[int, int], a: int, b: int) -> np.ndarray:
-        i, j = pos
-        return arr[2 * a + i : 2 * b : 2, j : 2 * ww : 2]
-
-    def block(a: int, b: int) -> None:
-        with np.errstate(divide="ignore", invalid="ignore"):  # zero flats are masked below
-            _block(a, b)
-
-    def _block(a: int, b: int) -> None:
-        bad = np.zeros((b - a, ww), dtype=bool)
-        for i in range(2):
-            for j in range(2):
-                bad |= plane(mosaic, (i, j), a, b) >= threshold[i, j]
-        if bad_pixels is not None:
-            if bad_per_pixel:
-                for i in range(2):
-                    for j in range(2):
-                        bad |= plane(bad_pixels, (i, j), a, b)
-            else:
-                bad |= bad_pixels[a:b]
-        for k, colour in enumerate(COLOURS):
-            acc = None
-            var_acc = None
-            for pos in positions[colour]:
-                raw = plane(mosaic, pos, a, b)
-                if dark is None or noise_arrays is not None:
-                    signal = np.subtract(raw, black[pos], dtype=np.float32)
-                if noise_arrays is not None:
-                    gain, read = noise_arrays
-                    var = np.maximum(signal, 0, dtype=np.float32)
-                    var *= np.float32(1.0 / gain[k])
-                    var += np.float32(read[k] ** 2)
-                if dark is not None:
-                    signal = np.subtract(raw, plane(dark, pos, a, b), dtype=np.float32)
-                if flat_per_pixel:
-                    f = plane(flat, pos, a, b)
-                    signal /= f
-                    bad |= ~(f > 0)
-                    if noise_arrays is not None:
-                        var /= np.square(f, dtype=np.float32)
-                if acc is None:
-                    acc, var_acc = signal, (var if noise_arrays is not None else None)
-                else:
-                    acc += signal
-                    if var_acc is not None:
-                        var_acc += var
-            n = len(positions[colour])
-            out = rgb[a:b, :, k]
-            np.multiply(acc, scale / n, out=out)
-            if variance is not None:
-                np.multiply(var_acc, (scale / n) ** 2, out=variance[a:b, :, k])
-            if flat is not None and not flat_per_pixel:
-                f = flat[a:b, :, k]
-                out /= f
-                bad |= ~(f > 0)
-                if variance is not None:
-                    variance[a:b, :, k] /= np.square(f)
-        np.logical_not(bad, out=valid[a:b])
-        if bad.any():
-            rgb[a:b][bad] = np.nan
-            if variance is not None:
-                variance[a:b][bad] = np.nan
-
-    starts = range(0, hh, _CHUNK_ROWS)
-    threads = _threads()
-    if threads > 1 and hh > 2 * _CHUNK_ROWS:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lambda a: block(a, min(a + _CHUNK_ROWS, hh)), starts))
-    else:
-        for a in starts:
-            block(a, min(a + _CHUNK_ROWS, hh))
-
+    scale, units = _scale_and_units(frame, t, normalize_iso, normalize_f_number)
+    job = _new_job(frame, dark, flat, bad_pixels, noise, saturation, scale)
+    _run_blocks(job)
     return LinearImage(
-        rgb=rgb,
-        valid=valid,
-        variance=variance,
+        rgb=job.rgb,
+        valid=job.valid,
+        variance=job.variance,
         units=units,
         scale=scale,
         exposure_s=float(t),
@@ -287,6 +181,246 @@ def linearize(
         f_number=frame.f_number,
         path=frame.path,
     )
+
+
+def _exposure_time_s(frame: RawFrame, exposure_s: float | None) -> float:
+    """The exposure time to normalise by, s: ``exposure_s`` if given, else the file's."""
+    t = exposure_s if exposure_s is not None else frame.exposure_s
+    if t is None or not (math.isfinite(t) and t > 0):
+        raise CalibrationError(
+            f"{frame.path}: exposure time unknown or not positive ({t}); pass exposure_s explicitly"
+        )
+    return t
+
+
+def _scale_and_units(
+    frame: RawFrame, exposure_s: float, normalize_iso: bool, normalize_f_number: bool
+) -> tuple[float, str]:
+    """Factor from black-subtracted DN to output units, and the units' name."""
+    scale = 1.0 / exposure_s
+    units = "DN/s"
+    if normalize_iso:
+        if frame.iso is None:
+            raise CalibrationError(f"{frame.path}: ISO unknown, cannot normalise by ISO/100")
+        scale *= 100.0 / frame.iso
+        units += " at ISO 100"
+    if normalize_f_number:
+        if frame.f_number is None:
+            raise CalibrationError(f"{frame.path}: f-number unknown, cannot normalise by f-number²")
+        scale *= frame.f_number**2
+        units += " · f²"
+    return scale, units
+
+
+def _check_dark(frame: RawFrame, dark: np.ndarray | None) -> None:
+    """Refuse a master dark whose size is not the frame's."""
+    mosaic = frame.mosaic
+    if dark is not None and dark.shape != mosaic.shape:
+        raise CalibrationError(
+            f"{frame.path}: master dark is {dark.shape[0]}×{dark.shape[1]} px but the frame is "
+            f"{mosaic.shape[0]}×{mosaic.shape[1]}; use a dark taken with this camera"
+        )
+
+
+def _flat_is_per_pixel(frame: RawFrame, flat: np.ndarray | None) -> bool:
+    """True for an H×W flat, False for a superpixel one (or none); refuses other shapes."""
+    mosaic = frame.mosaic
+    hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
+    flat_per_pixel = flat is not None and flat.shape == mosaic.shape
+    if flat is not None and not flat_per_pixel and flat.shape != (hh, ww, 3):
+        raise CalibrationError(
+            f"{frame.path}: flat field shape {flat.shape} fits neither the mosaic {mosaic.shape} "
+            f"nor its superpixels {(hh, ww, 3)}"
+        )
+    return flat_per_pixel
+
+
+def _bad_is_per_pixel(frame: RawFrame, bad_pixels: np.ndarray | None) -> bool:
+    """True for an H×W bad-pixel map, False for a superpixel one (or none); refuses others."""
+    mosaic = frame.mosaic
+    hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
+    bad_per_pixel = bad_pixels is not None and bad_pixels.shape == mosaic.shape
+    if bad_pixels is not None and not bad_per_pixel and bad_pixels.shape != (hh, ww):
+        raise CalibrationError(
+            f"{frame.path}: bad-pixel map shape {bad_pixels.shape} fits neither the mosaic "
+            f"{mosaic.shape} nor its superpixels {(hh, ww)}"
+        )
+    return bad_per_pixel
+
+
+def _noise_arrays(
+    frame: RawFrame, noise: NoiseModel | None
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Gain (e⁻/DN) and read noise (DN) per colour, or None; refuses a model for another ISO."""
+    if noise is None:
+        return None
+    if noise.iso is not None and frame.iso is not None and noise.iso != frame.iso:
+        raise CalibrationError(
+            f"{frame.path}: noise model is for ISO {noise.iso:g} but the frame is ISO "
+            f"{frame.iso:g}; measure a noise model at this ISO"
+        )
+    return noise.per_colour()
+
+
+def _new_job(
+    frame: RawFrame,
+    dark: np.ndarray | None,
+    flat: np.ndarray | None,
+    bad_pixels: np.ndarray | None,
+    noise: NoiseModel | None,
+    saturation: float,
+    scale: float,
+) -> _Job:
+    """Check the calibration data (shapes, then the noise model's ISO), derive per-position
+    levels, allocate the outputs."""
+    mosaic = frame.mosaic
+    hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
+    _check_dark(frame, dark)
+    flat_per_pixel = _flat_is_per_pixel(frame, flat)
+    bad_per_pixel = _bad_is_per_pixel(frame, bad_pixels)
+    noise_arrays = _noise_arrays(frame, noise)
+    threshold_dn = (
+        frame.black_per_position
+        + saturation * (frame.white_per_position - frame.black_per_position)
+    ).astype(np.float32)
+    # CFA positions (row, col) of each colour, e.g. RGGB: R (0,0); G (0,1),(1,0); B (1,1).
+    positions = {c: [divmod(i, 2) for i, p in enumerate(frame.cfa_pattern) if p == c]
+                 for c in COLOURS}
+    return _Job(
+        mosaic=mosaic, width_sp=ww,
+        black_dn=frame.black_per_position.astype(np.float32), threshold_dn=threshold_dn,
+        positions=positions, dark=dark, flat=flat, flat_per_pixel=flat_per_pixel,
+        bad_pixels=bad_pixels, bad_per_pixel=bad_per_pixel, noise_arrays=noise_arrays,
+        scale=scale,
+        rgb=np.empty((hh, ww, 3)),
+        valid=np.empty((hh, ww), dtype=bool),
+        variance=np.empty((hh, ww, 3)) if noise_arrays is not None else None,
+    )
+
+
+def _run_blocks(job: _Job) -> None:
+    """Fill the job's outputs block by block of :data:`_CHUNK_ROWS` rows, threaded if large."""
+    hh = job.rgb.shape[0]
+    starts = range(0, hh, _CHUNK_ROWS)
+    threads = _threads()
+    if threads > 1 and hh > 2 * _CHUNK_ROWS:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(lambda a: _block(job, a, min(a + _CHUNK_ROWS, hh)), starts))
+    else:
+        for a in starts:
+            _block(job, a, min(a + _CHUNK_ROWS, hh))
+
+
+def _plane(arr: np.ndarray, pos: tuple[int, int], a: int, b: int, width_sp: int) -> np.ndarray:
+    """The pixels at CFA position ``pos`` of superpixel rows ``a … b − 1``."""
+    i, j = pos
+    return arr[2 * a + i : 2 * b : 2, j : 2 * width_sp : 2]
+
+
+def _block(job: _Job, a: int, b: int) -> None:
+    """Linearize superpixel rows ``a … b − 1`` into the job's outputs."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # zero flats are masked below
+        bad = _clipped_or_bad(job, a, b)
+        for k, colour in enumerate(COLOURS):
+            acc, var_acc = _colour_sum(job, k, colour, a, b, bad)
+            _write_colour(job, k, len(job.positions[colour]), acc, var_acc, a, b, bad)
+        _mask(job, a, b, bad)
+
+
+def _clipped_or_bad(job: _Job, a: int, b: int) -> np.ndarray:
+    """Superpixels of rows ``a … b − 1`` with a saturated pixel or on the bad-pixel map."""
+    ww = job.width_sp
+    bad = np.zeros((b - a, ww), dtype=bool)
+    for i in range(2):
+        for j in range(2):
+            bad |= _plane(job.mosaic, (i, j), a, b, ww) >= job.threshold_dn[i, j]
+    if job.bad_pixels is not None:
+        if job.bad_per_pixel:
+            for i in range(2):
+                for j in range(2):
+                    bad |= _plane(job.bad_pixels, (i, j), a, b, ww)
+        else:
+            bad |= job.bad_pixels[a:b]
+    return bad
+
+
+def _colour_sum(
+    job: _Job, k: int, colour: str, a: int, b: int, bad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Sum over the colour's CFA positions of the corrected signal (DN) and its variance (DN²);
+    marks zero per-pixel flats in ``bad``."""
+    acc: np.ndarray | None = None
+    var_acc: np.ndarray | None = None
+    for pos in job.positions[colour]:
+        signal, var = _position_signal(job, k, pos, a, b, bad)
+        if acc is None:
+            acc, var_acc = signal, var
+        else:
+            acc += signal
+            if var_acc is not None:
+                var_acc += var
+    return acc, var_acc  # type: ignore[return-value]  # every colour has a CFA position
+
+
+def _position_signal(
+    job: _Job, k: int, pos: tuple[int, int], a: int, b: int, bad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """One CFA position's dark- or black-subtracted, per-pixel flat-fielded signal (DN,
+    float32) and its variance (DN², None without a noise model)."""
+    ww = job.width_sp
+    raw = _plane(job.mosaic, pos, a, b, ww)
+    if job.dark is None or job.noise_arrays is not None:
+        signal = np.subtract(raw, job.black_dn[pos], dtype=np.float32)
+    var = None
+    if job.noise_arrays is not None:
+        var = _pixel_variance_dn2(signal, job.noise_arrays, k)
+    if job.dark is not None:
+        signal = np.subtract(raw, _plane(job.dark, pos, a, b, ww), dtype=np.float32)
+    if job.flat_per_pixel:
+        f = _plane(job.flat, pos, a, b, ww)
+        signal /= f
+        bad |= ~(f > 0)
+        if var is not None:
+            var /= np.square(f, dtype=np.float32)
+    return signal, var
+
+
+def _pixel_variance_dn2(
+    signal_dn: np.ndarray, noise_arrays: tuple[np.ndarray, np.ndarray], k: int
+) -> np.ndarray:
+    """Shot plus read noise (DN², float32) of black-subtracted signals of colour ``k``."""
+    gain, read = noise_arrays
+    var = np.maximum(signal_dn, 0, dtype=np.float32)
+    var *= np.float32(1.0 / gain[k])
+    var += np.float32(read[k] ** 2)
+    return var
+
+
+def _write_colour(
+    job: _Job, k: int, n: int, acc: np.ndarray, var_acc: np.ndarray | None,
+    a: int, b: int, bad: np.ndarray,
+) -> None:
+    """Scale the mean of ``n`` positions into the outputs' colour ``k``, then apply a
+    superpixel flat (marking zero flats in ``bad``)."""
+    out = job.rgb[a:b, :, k]
+    np.multiply(acc, job.scale / n, out=out)
+    if job.variance is not None:
+        np.multiply(var_acc, (job.scale / n) ** 2, out=job.variance[a:b, :, k])
+    if job.flat is not None and not job.flat_per_pixel:
+        f = job.flat[a:b, :, k]
+        out /= f
+        bad |= ~(f > 0)
+        if job.variance is not None:
+            job.variance[a:b, :, k] /= np.square(f)
+
+
+def _mask(job: _Job, a: int, b: int, bad: np.ndarray) -> None:
+    """Record validity of rows ``a … b − 1`` and set their bad superpixels to NaN."""
+    np.logical_not(bad, out=job.valid[a:b])
+    if bad.any():
+        job.rgb[a:b][bad] = np.nan
+        if job.variance is not None:
+            job.variance[a:b][bad] = np.nan
 
 
 @dataclass(frozen=True)

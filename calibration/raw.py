@@ -252,6 +252,25 @@ def _margin_regions(
     return regions
 
 
+@dataclass(frozen=True, eq=False)
+class _Decoded:
+    """What :func:`_decode` copies out of LibRaw before closing the file."""
+
+    pattern: str
+    indices: np.ndarray
+    origin: tuple[int, int]
+    raw_shape: tuple[int, int]
+    mosaic: np.ndarray
+    black_by_index: list[float]
+    white_by_index: Any
+    white_scalar: float
+    wb: list[float]
+    other: Any
+    optical: dict[str, float] | None
+    ob_gate: bool
+    """True when ``optical`` comes from plain margins and must be dark to count."""
+
+
 def load_raw(path: str | os.PathLike[str]) -> RawFrame:
     """Read a Bayer RAW file: visible mosaic, CFA pattern, levels and capture metadata.
 
@@ -265,12 +284,41 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
     BlackLevelWarning
         The optical-black pixels differ from the stated black level by more than 2 DN.
     """
-    import rawpy
-
     path = Path(path)
     if not path.is_file():
         raise _fail(path, "no such RAW file; check the path")
     dng = _dng_tags(path)
+    d = _decode(path, dng)
+    black = _black_per_position(d, dng)
+    white = _white_per_position(d)
+    if np.any(white <= black):
+        raise _fail(path, f"white level {white.min():g} DN is not above black level "
+                          f"{black.max():g} DN; the file's metadata are inconsistent")
+    optical = _checked_optical_black(path, d, black, white)
+    meta = _capture_metadata(path)
+    _fill_from_libraw(meta, d.other)
+    return RawFrame(
+        path=path,
+        mosaic=d.mosaic,
+        cfa_pattern=d.pattern,
+        black_per_position=black,
+        white_per_position=white,
+        optical_black=optical,
+        camera_whitebalance=dict(zip(("R", "G", "B", "G2"), d.wb, strict=False)),
+        exposure_s=meta.get("exposure_s"),
+        iso=meta.get("iso"),
+        f_number=meta.get("f_number"),
+        make=meta.get("make"),
+        model=meta.get("model"),
+        raw_shape=d.raw_shape,
+        visible_origin=d.origin,
+    )
+
+
+def _decode(path: Path, dng: dict[int, np.ndarray] | None) -> _Decoded:
+    """Open the file with LibRaw and copy out the mosaic, levels and optical-black means."""
+    import rawpy
+
     try:
         with rawpy.imread(str(path)) as raw:
             pattern, indices = _bayer_layout(raw, path)
@@ -285,45 +333,71 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
             white_scalar = float(raw.white_level)
             wb = [float(v) for v in raw.camera_whitebalance]
             other = raw.other
-            if dng is not None and _MASKED_AREAS in dng:
-                flat = [int(v) for v in np.ravel(dng[_MASKED_AREAS])]
-                ob_regions = [
-                    tuple(flat[k : k + 4]) for k in range(0, len(flat) - 3, 4) if flat[k + 3] > 0
-                ]
-                ob_gate = False
-            elif dng is None:
-                ob_regions = _margin_regions(raw_shape, origin, size)
-                ob_gate = True
-            else:
-                ob_regions, ob_gate = [], False
+            ob_regions, ob_gate = _optical_black_regions(dng, raw_shape, origin, size)
             optical = (
                 optical_black_means(raw.raw_image, ob_regions, pattern, origin)
                 if ob_regions
                 else None
             )
     except rawpy.LibRawError as exc:
-        detail = exc.args[0].decode(errors="replace") if exc.args and isinstance(
-            exc.args[0], bytes) else str(exc)
-        raise _fail(path, f"cannot decode as a RAW file ({type(exc).__name__}: {detail}); "
-                          "the file is corrupt, truncated or of an unsupported kind") from None
+        raise _decode_failure(path, exc) from None
     except MemoryError:
         raise _fail(path, "RAW file too large to load into memory") from None
+    return _Decoded(pattern, indices, origin, raw_shape, mosaic, black_by_index, white_by_index,
+                    white_scalar, wb, other, optical, ob_gate)
 
-    black = np.array([[black_by_index[int(c)] for c in row] for row in indices], np.float64)
+
+def _decode_failure(path: Path, exc: Exception) -> RawFormatError:
+    """The error for a file LibRaw cannot decode, with LibRaw's reason."""
+    detail = exc.args[0].decode(errors="replace") if exc.args and isinstance(
+        exc.args[0], bytes) else str(exc)
+    return _fail(path, f"cannot decode as a RAW file ({type(exc).__name__}: {detail}); "
+                       "the file is corrupt, truncated or of an unsupported kind")
+
+
+def _optical_black_regions(
+    dng: dict[int, np.ndarray] | None, raw_shape: tuple[int, int], origin: tuple[int, int],
+    size: tuple[int, int],
+) -> tuple[list[tuple[int, int, int, int]], bool]:
+    """Optical-black regions of the full mosaic and whether they must be gated as dark:
+    a DNG's ``MaskedAreas`` (trusted), a non-DNG's margins (gated), else none."""
     if dng is not None and _MASKED_AREAS in dng:
-        stated = _dng_stated_black(dng, origin)
+        flat = [int(v) for v in np.ravel(dng[_MASKED_AREAS])]
+        regions = [
+            tuple(flat[k : k + 4]) for k in range(0, len(flat) - 3, 4) if flat[k + 3] > 0
+        ]
+        return regions, False  # type: ignore[return-value]
+    if dng is None:
+        return _margin_regions(raw_shape, origin, size), True
+    return [], False
+
+
+def _black_per_position(d: _Decoded, dng: dict[int, np.ndarray] | None) -> np.ndarray:
+    """Black level (DN) per visible CFA position: LibRaw's, or a masked DNG's stated tag."""
+    black = np.array([[d.black_by_index[int(c)] for c in row] for row in d.indices], np.float64)
+    if dng is not None and _MASKED_AREAS in dng:
+        stated = _dng_stated_black(dng, d.origin)
         if stated is not None:
             black = stated
-    if white_by_index is not None and all(w > 0 for w in white_by_index):
-        white = np.array([[float(white_by_index[int(c)]) for c in row] for row in indices])
-    else:
-        white = np.full((2, 2), white_scalar)
-    if np.any(white <= black):
-        raise _fail(path, f"white level {white.min():g} DN is not above black level "
-                          f"{black.max():g} DN; the file's metadata are inconsistent")
+    return black
 
-    black_colour = _per_colour(black, pattern)
-    if optical is not None and ob_gate:
+
+def _white_per_position(d: _Decoded) -> np.ndarray:
+    """Saturation level (DN) per visible CFA position: per channel if stated, else the scalar."""
+    if d.white_by_index is not None and all(w > 0 for w in d.white_by_index):
+        return np.array([[float(d.white_by_index[int(c)]) for c in row] for row in d.indices])
+    return np.full((2, 2), d.white_scalar)
+
+
+def _checked_optical_black(
+    path: Path, d: _Decoded, black: np.ndarray, white: np.ndarray
+) -> dict[str, float] | None:
+    """The optical-black means, dropped if a gated margin is lit; warns
+    (:class:`BlackLevelWarning`, attributed to :func:`load_raw`'s caller) if they disagree
+    with the stated black by more than :data:`BLACK_TOLERANCE_DN`."""
+    optical = d.optical
+    black_colour = _per_colour(black, d.pattern)
+    if optical is not None and d.ob_gate:
         span = float(white.min() - black.max())
         if any(optical[c] > black_colour[c] + _DARK_FRACTION * span for c in COLOURS):
             optical = None  # lit or junk margin, not optical black
@@ -337,32 +411,19 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
                 + ", ".join(f"{c} {black_colour[c]:.1f}" for c in COLOURS)
                 + f" DN (> {BLACK_TOLERANCE_DN:g} DN apart); subtract a master dark frame",
                 BlackLevelWarning,
-                stacklevel=2,
+                stacklevel=3,  # load_raw's caller
             )
+    return optical
 
-    meta = _capture_metadata(path)
+
+def _fill_from_libraw(meta: dict[str, Any], other: Any) -> None:
+    """Fill exposure (s), ISO and f-number that OpenImageIO did not find from LibRaw's values."""
     if meta.get("exposure_s") is None and other.shutter_speed > 0:
         meta["exposure_s"] = float(other.shutter_speed)
     if meta.get("iso") is None and other.iso_speed > 0:
         meta["iso"] = float(other.iso_speed)
     if meta.get("f_number") is None and other.aperture > 0:
         meta["f_number"] = float(other.aperture)
-    return RawFrame(
-        path=path,
-        mosaic=mosaic,
-        cfa_pattern=pattern,
-        black_per_position=black,
-        white_per_position=white,
-        optical_black=optical,
-        camera_whitebalance=dict(zip(("R", "G", "B", "G2"), wb, strict=False)),
-        exposure_s=meta.get("exposure_s"),
-        iso=meta.get("iso"),
-        f_number=meta.get("f_number"),
-        make=meta.get("make"),
-        model=meta.get("model"),
-        raw_shape=raw_shape,
-        visible_origin=origin,
-    )
 
 
 def _positive(value: Any) -> float | None:

@@ -195,122 +195,37 @@ class RigConfig:
             raise ConfigError(f"{self.path}: {exc}: add the missing tables to the rig file") from None
 
 
+_RIG_KEYS = {"format_version", "name", "kinematics", "simulation", "buses", "axes", "geometry",
+             "light", "camera", "white_reference", "arms", "sample", "light_stage", "timing", "dmx"}
+
+
 def load_rig(path: str | Path) -> RigConfig:
-    """Parse and validate a rig file; raises :class:`ConfigError` naming file and field."""
+    """Parse and validate a rig file; raises :class:`ConfigError` naming file and field.
+
+    Sections are checked in a fixed order (a file with several mistakes reports the first).
+    """
     path = Path(path)
     top = Section(load_toml(path, "rig file"), str(path))
-    top.check_keys({"format_version", "name", "kinematics", "simulation", "buses", "axes",
-                    "geometry", "light", "camera", "white_reference", "arms", "sample",
-                    "light_stage", "timing", "dmx"})
-    version = top.integer("format_version")
-    if version != RIG_FORMAT_VERSION:
-        raise top.error("format_version", f"is {version}; this gonio reads version {RIG_FORMAT_VERSION}")
-    kin = top.get("kinematics", str)
-    if kin not in KINEMATICS:
-        raise top.error("kinematics", f"unknown '{kin}' (known: {', '.join(KINEMATICS)})")
-
-    sim = top.section("simulation", {})
-    time_scale = sim.number("time_scale", 1.0, min=1e-3)
-    sim_clock = sim.get("clock", str, "stepped")
-    if sim_clock not in SIM_CLOCKS:
-        raise sim.error("clock", f"is '{sim_clock}': use one of {', '.join(SIM_CLOCKS)}")
-
+    top.check_keys(_RIG_KEYS)
+    kin = _parse_header(top)
+    time_scale, sim_clock = _parse_simulation(top.section("simulation", {}))
     fixed = kin == LightStage.name  # a light stage need not have any servo
-    buses_sec = top.section("buses", {}) if fixed else top.section("buses")
-    if not buses_sec.names() and not fixed:
-        raise buses_sec.error(None, "declares no bus: add e.g. [buses.main] with port and baud")
-    buses = {}
-    for name in buses_sec.names():
-        b = buses_sec.section(name)
-        b.check_keys({"port", "baud", "simulated"})
-        buses[name] = BusConfig(
-            name=name,
-            port=b.get("port", str, "sim"),
-            baud=b.integer("baud", 57600, min=9600),
-            simulated=b.get("simulated", bool, False),
-        )
-
-    axes_sec = top.section("axes", {}) if fixed else top.section("axes")
-    axes = {}
-    ids_seen: dict[tuple[str, int], str] = {}
-    for name in axes_sec.names():
-        a = axes_sec.section(name)
-        a.check_keys({"bus", "id", "zero_tick", "direction", "min_deg", "max_deg",
-                      "profile_velocity", "profile_acceleration", "tolerance_deg"})
-        bus = a.get("bus", str)
-        if bus not in buses:
-            raise a.error("bus", f"names bus '{bus}' that [buses] does not declare")
-        sid = a.integer("id", min=0, max=252)
-        if (bus, sid) in ids_seen:
-            raise a.error("id", f"{sid} is already used by axis '{ids_seen[(bus, sid)]}' on bus '{bus}'")
-        ids_seen[(bus, sid)] = name
-        direction = a.integer("direction", 1)
-        if direction not in (1, -1):
-            raise a.error("direction", f"must be 1 or -1, got {direction}")
-        min_deg, max_deg = a.number("min_deg"), a.number("max_deg")
-        if not min_deg < max_deg:
-            raise a.error("max_deg", f"must exceed min_deg ({min_deg:g} ≥ {max_deg:g})")
-        zero = a.integer("zero_tick", 2048, min=0, max=XM430_POSITION_TICKS - 1)
-        for label, deg in (("min_deg", min_deg), ("max_deg", max_deg)):
-            tick = zero + direction * deg * XM430_POSITION_TICKS / 360.0
-            if not 0 <= tick <= XM430_POSITION_TICKS - 1:
-                raise a.error(label, f"{deg:g}° maps to tick {tick:.0f}, outside the servo's 0–4095")
-        axes[name] = AxisConfig(
-            name=name, bus=bus, servo_id=sid, zero_tick=zero, direction=direction,
-            min_deg=min_deg, max_deg=max_deg,
-            profile_velocity=a.integer("profile_velocity", 100, min=1, max=32767),
-            profile_acceleration=a.integer("profile_acceleration", 20, min=1, max=32767),
-            tolerance_deg=a.number("tolerance_deg", 0.5, min=0.0),
-        )
-
+    buses = _parse_buses(top.section("buses", {}) if fixed else top.section("buses"), fixed)
+    axes = _parse_axes(top.section("axes", {}) if fixed else top.section("axes"), buses)
     geo = top.section("geometry")
     geo.check_keys({"light_distance_m", "camera_distance_m", "shadow_cone_deg",
                     "max_elevation_deg", "settle_s"})
     light = top.section("light", {})
     light.check_keys({"intensity_w_per_sr", "spot_diameter_m"})
-
     cam = top.section("camera")
-    cam.check_keys({"driver", "port", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
-                    "view_diameter_m", "intrinsics"})
-    roi = cam.get("roi", list)
-    if len(roi) != 4 or not all(isinstance(v, int) for v in roi) or not (
-        roi[0] < roi[2] and roi[1] < roi[3]
-    ):
-        raise cam.error("roi", f"must be [x0, y0, x1, y1] integers with x0 < x1, y0 < y1; got {roi}")
-    camera = CameraConfig(
-        driver=cam.get("driver", str, "simulated"),
-        exposure_s=cam.number("exposure_s", 0.01, min=1e-6),
-        iso=cam.integer("iso", 100, min=1),
-        roi=tuple(roi),  # type: ignore[arg-type]
-        sensor=cam.get("sensor", dict, {}),
-        max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0),
-        intrinsics=_parse_intrinsics(cam.section("intrinsics")) if "intrinsics" in cam else None,
-        port=cam.get("port", str, None),
-    )
-
-    wr = top.section("white_reference", {})
-    wr.check_keys({"reflectance", "theta_i_deg", "theta_r_deg", "delta_phi_deg"})
-    refl = wr.get("reflectance", (float, list), 0.99)
-    refl_rgb = tuple(float(v) for v in (refl if isinstance(refl, list) else [refl] * 3))
-    if len(refl_rgb) != 3 or not all(0 < v <= 1 for v in refl_rgb):
-        raise wr.error("reflectance", f"must be one number or [R, G, B] in (0, 1], got {refl}")
-    white = WhiteReference(
-        reflectance=refl_rgb,  # type: ignore[arg-type]
-        theta_i=wr.number("theta_i_deg", 0.0, min=0, max=89),
-        theta_r=wr.number("theta_r_deg", 45.0, min=0, max=89),
-        delta_phi=wr.number("delta_phi_deg", 180.0, min=-180, max=360),
-    )
-
+    camera = _parse_camera(cam)
+    white = _parse_white_reference(top.section("white_reference", {}))
     light_distance = geo.number("light_distance_m", min=1e-3)
     camera_distance = geo.number("camera_distance_m", min=1e-3)
     sample = top.section("sample", {})
     sample.check_keys({"size_m", "shape", "radius_m", "centre_m", "image_based"})
     sample_cfg = _parse_sample(sample, camera)
-    footprint = FootprintConfig(
-        sample_size_m=sample.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
-        spot_diameter_m=light.number("spot_diameter_m", DEFAULT_SPOT_DIAMETER_M, min=0.0),
-        view_diameter_m=cam.number("view_diameter_m", DEFAULT_VIEW_DIAMETER_M, min=0.0),
-    )
+    footprint = _parse_footprint(sample, light, cam)
     timing = top.section("timing", {})
     timing.check_keys({"bus_cycle_s"})
 
@@ -336,6 +251,131 @@ def load_rig(path: str | Path) -> RigConfig:
         light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
         bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes), min=0.0),
         sample=sample_cfg,
+    )
+
+
+def _parse_header(top: Section) -> str:
+    """``format_version`` (must be :data:`RIG_FORMAT_VERSION`) and ``kinematics``: its name."""
+    version = top.integer("format_version")
+    if version != RIG_FORMAT_VERSION:
+        raise top.error("format_version", f"is {version}; this gonio reads version {RIG_FORMAT_VERSION}")
+    kin = top.get("kinematics", str)
+    if kin not in KINEMATICS:
+        raise top.error("kinematics", f"unknown '{kin}' (known: {', '.join(KINEMATICS)})")
+    return kin
+
+
+def _parse_simulation(sim: Section) -> tuple[float, str]:
+    """``[simulation]``: time_scale (simulated s per host s) and clock (:data:`SIM_CLOCKS`)."""
+    time_scale = sim.number("time_scale", 1.0, min=1e-3)
+    sim_clock = sim.get("clock", str, "stepped")
+    if sim_clock not in SIM_CLOCKS:
+        raise sim.error("clock", f"is '{sim_clock}': use one of {', '.join(SIM_CLOCKS)}")
+    return time_scale, sim_clock
+
+
+def _parse_buses(sec: Section, fixed: bool) -> dict[str, BusConfig]:
+    """``[buses.NAME]``: port, baud, simulated; at least one unless the rig is ``fixed``."""
+    if not sec.names() and not fixed:
+        raise sec.error(None, "declares no bus: add e.g. [buses.main] with port and baud")
+    buses = {}
+    for name in sec.names():
+        b = sec.section(name)
+        b.check_keys({"port", "baud", "simulated"})
+        buses[name] = BusConfig(
+            name=name,
+            port=b.get("port", str, "sim"),
+            baud=b.integer("baud", 57600, min=9600),
+            simulated=b.get("simulated", bool, False),
+        )
+    return buses
+
+
+def _parse_axes(sec: Section, buses: Mapping[str, BusConfig]) -> dict[str, AxisConfig]:
+    """``[axes.NAME]``: one axis per servo; a servo id is used once per bus."""
+    axes = {}
+    ids_seen: dict[tuple[str, int], str] = {}
+    for name in sec.names():
+        axes[name] = _parse_axis(sec.section(name), name, buses, ids_seen)
+    return axes
+
+
+def _parse_axis(a: Section, name: str, buses: Mapping[str, BusConfig],
+                ids_seen: dict[tuple[str, int], str]) -> AxisConfig:
+    """``[axes.NAME]``: bus, id (recorded in ``ids_seen``), direction, limits in degrees that
+    the servo's tick range can reach, zero tick, profile and tolerance."""
+    a.check_keys({"bus", "id", "zero_tick", "direction", "min_deg", "max_deg",
+                  "profile_velocity", "profile_acceleration", "tolerance_deg"})
+    bus = a.get("bus", str)
+    if bus not in buses:
+        raise a.error("bus", f"names bus '{bus}' that [buses] does not declare")
+    sid = a.integer("id", min=0, max=252)
+    if (bus, sid) in ids_seen:
+        raise a.error("id", f"{sid} is already used by axis '{ids_seen[(bus, sid)]}' on bus '{bus}'")
+    ids_seen[(bus, sid)] = name
+    direction = a.integer("direction", 1)
+    if direction not in (1, -1):
+        raise a.error("direction", f"must be 1 or -1, got {direction}")
+    min_deg, max_deg = a.number("min_deg"), a.number("max_deg")
+    if not min_deg < max_deg:
+        raise a.error("max_deg", f"must exceed min_deg ({min_deg:g} ≥ {max_deg:g})")
+    zero = a.integer("zero_tick", 2048, min=0, max=XM430_POSITION_TICKS - 1)
+    for label, deg in (("min_deg", min_deg), ("max_deg", max_deg)):
+        tick = zero + direction * deg * XM430_POSITION_TICKS / 360.0
+        if not 0 <= tick <= XM430_POSITION_TICKS - 1:
+            raise a.error(label, f"{deg:g}° maps to tick {tick:.0f}, outside the servo's 0–4095")
+    return AxisConfig(
+        name=name, bus=bus, servo_id=sid, zero_tick=zero, direction=direction,
+        min_deg=min_deg, max_deg=max_deg,
+        profile_velocity=a.integer("profile_velocity", 100, min=1, max=32767),
+        profile_acceleration=a.integer("profile_acceleration", 20, min=1, max=32767),
+        tolerance_deg=a.number("tolerance_deg", 0.5, min=0.0),
+    )
+
+
+def _parse_camera(cam: Section) -> CameraConfig:
+    """``[camera]``: driver, port, exposure_s, iso, roi [x0, y0, x1, y1], sensor, retries and
+    intrinsics (``view_diameter_m`` belongs to the footprint)."""
+    cam.check_keys({"driver", "port", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
+                    "view_diameter_m", "intrinsics"})
+    roi = cam.get("roi", list)
+    if len(roi) != 4 or not all(isinstance(v, int) for v in roi) or not (
+        roi[0] < roi[2] and roi[1] < roi[3]
+    ):
+        raise cam.error("roi", f"must be [x0, y0, x1, y1] integers with x0 < x1, y0 < y1; got {roi}")
+    return CameraConfig(
+        driver=cam.get("driver", str, "simulated"),
+        exposure_s=cam.number("exposure_s", 0.01, min=1e-6),
+        iso=cam.integer("iso", 100, min=1),
+        roi=tuple(roi),  # type: ignore[arg-type]
+        sensor=cam.get("sensor", dict, {}),
+        max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0),
+        intrinsics=_parse_intrinsics(cam.section("intrinsics")) if "intrinsics" in cam else None,
+        port=cam.get("port", str, None),
+    )
+
+
+def _parse_white_reference(wr: Section) -> WhiteReference:
+    """``[white_reference]``: reflectance (one number or [R, G, B] in (0, 1]) and its geometry."""
+    wr.check_keys({"reflectance", "theta_i_deg", "theta_r_deg", "delta_phi_deg"})
+    refl = wr.get("reflectance", (float, list), 0.99)
+    refl_rgb = tuple(float(v) for v in (refl if isinstance(refl, list) else [refl] * 3))
+    if len(refl_rgb) != 3 or not all(0 < v <= 1 for v in refl_rgb):
+        raise wr.error("reflectance", f"must be one number or [R, G, B] in (0, 1], got {refl}")
+    return WhiteReference(
+        reflectance=refl_rgb,  # type: ignore[arg-type]
+        theta_i=wr.number("theta_i_deg", 0.0, min=0, max=89),
+        theta_r=wr.number("theta_r_deg", 45.0, min=0, max=89),
+        delta_phi=wr.number("delta_phi_deg", 180.0, min=-180, max=360),
+    )
+
+
+def _parse_footprint(sample: Section, light: Section, cam: Section) -> FootprintConfig:
+    """Sample size (``[sample]``), light spot (``[light]``) and camera view (``[camera]``), m."""
+    return FootprintConfig(
+        sample_size_m=sample.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
+        spot_diameter_m=light.number("spot_diameter_m", DEFAULT_SPOT_DIAMETER_M, min=0.0),
+        view_diameter_m=cam.number("view_diameter_m", DEFAULT_VIEW_DIAMETER_M, min=0.0),
     )
 
 

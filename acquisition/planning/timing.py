@@ -115,14 +115,6 @@ class TimeModel:
         c = self.costs
         return c.settle_s + c.bus_cycle_s + c.exposure_s
 
-    def sequence_s(self, start: Mapping[str, float], targets: Sequence[Mapping[str, float]]) -> float:
-        """Predicted duration of capture steps at ``targets`` in order, starting at ``start``."""
-        total, current = 0.0, start
-        for joints in targets:
-            total += self.move_s(current, joints) + self.step_overhead_s()
-            current = joints
-        return total
-
     def for_joints(self, joint_names: Sequence[str]) -> ArrayTimeModel:
         """The vectorised model over joint arrays in ``joint_names`` order."""
         return ArrayTimeModel(self, tuple(joint_names))
@@ -139,11 +131,6 @@ class ArrayTimeModel:
         self._reach_v = self.velocity**2 / self.accel  # distance at which v is reached
         self._four_over_a = 4.0 / self.accel
         self._inv_v = 1.0 / self.velocity
-
-    def axis_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Per-axis durations (…, A) of the moves a → b, seconds."""
-        d = b[..., self.axes] - a[..., self.axes]
-        return trapezoid_time_array(d, self.velocity, self.accel)
 
     def reach_deg(self, t_s: np.ndarray) -> np.ndarray:
         """Farthest travel (…, J) in degrees each joint can make in ``t_s`` seconds (…);

@@ -141,12 +141,6 @@ def bracket_signal(
     return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
 
 
-def reference_curve(refs: list[FrameSignal]) -> Callable[[int], np.ndarray]:
-    """White-reference signal at any step, interpolated linearly between its captures."""
-    at, _ = reference_curves(refs)
-    return at
-
-
 def reference_curves(
     refs: list[FrameSignal],
 ) -> tuple[Callable[[int], np.ndarray], Callable[[int], np.ndarray]]:
@@ -208,53 +202,142 @@ def reduce_session(
 
         return reduce_image_session(folder.path, progress, bundle=bundle)
     kin = rig.kinematics()
+    records, complete = _done_records(folder)
+    frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis))
+    refs = _reference_signals(frames, records)
+    white = _WhiteScale.of(refs, rig)
+    drift = _drift_pct(refs)
+    table = _new_table(folder, rig, plan, drift, cal)
+    sums = _NoiseSums.zeros(table) if _noise_model_covers(cal, records) else None
+    poses, brackets = _samples(records, complete)
+    for k, rec in enumerate(poses):
+        fs = frames.sample(rec, brackets)
+        cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
+        pose = binning_pose(rec)
+        if fs.n_valid == 0 or cos_i <= 0:
+            continue
+        _add_sample(table, sums, pose, fs, white, frames.when[rec.step], cos_i)
+        if progress:
+            progress(k + 1, len(poses))
+    predicted = sums.predicted(table.shape) if sums is not None else None
+    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0, predicted,
+                     None if cal is None else cal.path)
+
+
+def _done_records(folder: SessionFolder) -> tuple[list[StepRecord], set[int]]:
+    """The journal's captured steps, and the HDR brackets it records as complete."""
     with folder.journal() as journal:
         records = [r for r in journal.steps() if r.status == "done"]
         groups = {g for g in (hdr_group(r.note) for r in records) if g is not None}
         complete = {g for g in groups if journal.meta(f"{HDR_DONE_META}{g}") is not None}
     if not records:
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
+    return records, complete
 
-    # Interpolate the reference in time (the light drifts with time, not with step number):
-    # the device clock where every frame has one and it never runs back (a resumed simulated
-    # rig restarts its clock), else the host clock, else the step number.
+
+def _reference_coordinates(records: list[StepRecord], reference_axis: str) -> dict[int, float]:
+    """Per step, where it sits on the axis the white reference is interpolated along.
+
+    ``"step"``: the step number. ``"time"`` (the light drifts with time, not with step
+    number): the device clock where every frame has one and it never runs back (a resumed
+    simulated rig restarts its clock), else the host clock, else the step number.
+    """
     dev_t = [r.device_time_s for r in sorted(records, key=lambda r: r.step)]
     if reference_axis == "step":
-        when = {r.step: float(r.step) for r in records}
-    elif all(t is not None for t in dev_t) and all(np.diff(np.array(dev_t, float)) >= 0):
-        when = {r.step: float(r.device_time_s) for r in records}  # type: ignore[arg-type]
-    elif all(r.completed_at is not None for r in records):
-        when = {r.step: float(r.completed_at) for r in records}  # type: ignore[arg-type]
-    else:
-        when = {r.step: float(r.step) for r in records}
+        return {r.step: float(r.step) for r in records}
+    if all(t is not None for t in dev_t) and all(np.diff(np.array(dev_t, float)) >= 0):
+        return {r.step: float(r.device_time_s) for r in records}  # type: ignore[arg-type]
+    if all(r.completed_at is not None for r in records):
+        return {r.step: float(r.completed_at) for r in records}  # type: ignore[arg-type]
+    return {r.step: float(r.step) for r in records}
 
-    def signal(rec: StepRecord) -> FrameSignal:
-        fs = frame_signal(folder.frames_dir / str(rec.frame), rig.camera.roi, rec.step, cal)
-        return dataclasses.replace(fs, at=when[rec.step])
 
-    refs = [signal(r) for r in records if r.kind == REFERENCE]
+@dataclass(frozen=True)
+class _SessionFrames:
+    """Reads a session's frames into ROI signals stamped with their reference coordinate."""
+
+    folder: SessionFolder
+    rig: RigConfig
+    cal: CalibrationBundle | None
+    when: dict[int, float]
+    """Reference-interpolation coordinate of each step (:func:`_reference_coordinates`)."""
+
+    def frame(self, rec: StepRecord) -> FrameSignal:
+        """The ROI signal of one plain frame."""
+        fs = frame_signal(self.folder.frames_dir / str(rec.frame), self.rig.camera.roi,
+                          rec.step, self.cal)
+        return dataclasses.replace(fs, at=self.when[rec.step])
+
+    def sample(self, rec: StepRecord, brackets: dict[int, list[StepRecord]]) -> FrameSignal:
+        """The ROI signal of a sample: a plain frame, or the merge of its HDR bracket."""
+        g = hdr_group(rec.note)
+        if g is None:
+            return self.frame(rec)
+        return bracket_signal([self.folder.frames_dir / str(r.frame) for r in brackets[g]],
+                              self.rig, rec.step, self.cal)
+
+
+def _reference_signals(frames: _SessionFrames, records: list[StepRecord]) -> list[FrameSignal]:
+    """The white-reference frames' signals; SessionError if none, or one has no valid ROI."""
+    refs = [frames.frame(r) for r in records if r.kind == REFERENCE]
+    folder = frames.folder
     if not refs:
         raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
     if any(r.n_valid == 0 for r in refs):
         raise SessionError(f"{folder.path}: a white-reference frame is saturated or dark in the ROI")
-    ref_at, ref_var_at = reference_curves(refs)
-    ref_signals = np.array([r.signal for r in refs])
-    drift = float(np.max(np.ptp(ref_signals, axis=0) / np.mean(ref_signals, axis=0)) * 100.0)
+    return refs
 
-    wr = rig.white_reference
-    rho = np.asarray(wr.reflectance, float)
-    cos_ref = np.cos(np.radians(wr.theta_i))
+
+@dataclass(frozen=True)
+class _WhiteScale:
+    """What turns a sample's signal into BRDF: the interpolated reference and its geometry."""
+
+    at: Callable[[float], np.ndarray]
+    """Reference signal (DN/s) at a reference coordinate."""
+    var_at: Callable[[float], np.ndarray]
+    """Its variance, (DN/s)²."""
+    rho: np.ndarray
+    """Reflectance of the reference (R, G, B)."""
+    cos_ref: float
+    """cos θi of the reference's geometry."""
+
+    @classmethod
+    def of(cls, refs: list[FrameSignal], rig: RigConfig) -> _WhiteScale:
+        """From the reference frames' signals and the rig's white-reference description."""
+        at, var_at = reference_curves(refs)
+        wr = rig.white_reference
+        return cls(at, var_at, np.asarray(wr.reflectance, float), np.cos(np.radians(wr.theta_i)))
+
+
+def _drift_pct(refs: list[FrameSignal]) -> float:
+    """Peak-to-peak change of the white reference, % of its mean (largest over colours)."""
+    ref_signals = np.array([r.signal for r in refs])
+    return float(np.max(np.ptp(ref_signals, axis=0) / np.mean(ref_signals, axis=0)) * 100.0)
+
+
+def _new_table(folder: SessionFolder, rig: RigConfig, plan: PlanSpec, drift_pct: float,
+               cal: CalibrationBundle | None) -> IsotropicTable:
+    """The plan's empty table, with the session's provenance (and the bundle's, if any)."""
     table = IsotropicTable(
         plan.table.theta_i_edges, plan.table.theta_r_edges, plan.table.delta_phi_edges,
-        provenance=session_provenance(folder, rig, plan, reference_drift_pct=drift),
+        provenance=session_provenance(folder, rig, plan, reference_drift_pct=drift_pct),
     )
     if cal is not None:
         table.provenance["calibration_bundle"] = str(cal.path.resolve())
-    with_noise = cal is not None and all(
+    return table
+
+
+def _noise_model_covers(cal: CalibrationBundle | None, records: list[StepRecord]) -> bool:
+    """True when the bundle has a noise model for the ISO of every frame that states one."""
+    return cal is not None and all(
         cal.noise_for(float(r.iso)) is not None for r in records if getattr(r, "iso", None))
-    var_sum = np.zeros((int(np.prod(table.shape)), 3)) if with_noise else None
-    var_n = np.zeros(int(np.prod(table.shape))) if with_noise else None
-    # One sample per plain frame, and per complete HDR bracket (its first row stands for it).
+
+
+def _samples(
+    records: list[StepRecord], complete: set[int],
+) -> tuple[list[StepRecord], dict[int, list[StepRecord]]]:
+    """One record per sample: each plain pose frame, and the first row of each complete HDR
+    bracket; and each such bracket's rows, by group."""
     brackets: dict[int, list[StepRecord]] = {}
     poses = []
     for r in records:
@@ -266,35 +349,44 @@ def reduce_session(
             if g not in brackets:
                 poses.append(r)
             brackets.setdefault(g, []).append(r)
+    return poses, brackets
 
-    for k, rec in enumerate(poses):
-        g = hdr_group(rec.note)
-        if g is None:
-            fs = signal(rec)
-        else:
-            fs = bracket_signal([folder.frames_dir / str(r.frame) for r in brackets[g]],
-                                rig, rec.step, cal)
-        cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
-        pose = binning_pose(rec)
-        if fs.n_valid == 0 or cos_i <= 0:
-            continue
-        ref = ref_at(when[rec.step])
-        f = fs.signal / ref * (rho / np.pi) * (cos_ref / cos_i)
-        if var_sum is not None and var_n is not None:
-            var_f = f**2 * (fs.variance / fs.signal**2 + ref_var_at(when[rec.step]) / ref**2)
-            idx = int(np.ravel(table.flat_index(pose.theta_i, pose.theta_r, pose.delta_phi))[0])
-            if idx >= 0 and np.all(np.isfinite(var_f)):
-                var_sum[idx] += var_f
-                var_n[idx] += 1
-        table.add(
-            np.array([pose.theta_i]), np.array([pose.theta_r]), np.array([pose.delta_phi]),
-            f[None, :],
-        )
-        if progress:
-            progress(k + 1, len(poses))
-    predicted = None
-    if var_sum is not None and var_n is not None:
+
+@dataclass(frozen=True)
+class _NoiseSums:
+    """Per flat table bin: Σ of the samples' predicted variances (sr⁻², R, G, B) and their count."""
+
+    var_sum: np.ndarray
+    var_n: np.ndarray
+
+    @classmethod
+    def zeros(cls, table: IsotropicTable) -> _NoiseSums:
+        """Empty sums for every bin of ``table``."""
+        return cls(np.zeros((int(np.prod(table.shape)), 3)), np.zeros(int(np.prod(table.shape))))
+
+    def add(self, idx: int, var_f: np.ndarray) -> None:
+        """Count one sample's variance in bin ``idx`` (skipped outside the table or if not finite)."""
+        if idx >= 0 and np.all(np.isfinite(var_f)):
+            self.var_sum[idx] += var_f
+            self.var_n[idx] += 1
+
+    def predicted(self, shape: tuple[int, ...]) -> np.ndarray:
+        """Variance of each bin's mean, Σ var / n² (table shape × 3; NaN for empty bins)."""
         with np.errstate(invalid="ignore", divide="ignore"):
-            predicted = (var_sum / var_n[:, None] ** 2).reshape(*table.shape, 3)
-    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0, predicted,
-                     None if cal is None else cal.path)
+            return (self.var_sum / self.var_n[:, None] ** 2).reshape(*shape, 3)
+
+
+def _add_sample(table: IsotropicTable, sums: _NoiseSums | None, pose: Pose, fs: FrameSignal,
+                white: _WhiteScale, when: float, cos_i: float) -> None:
+    """Bin one sample's BRDF f = S / S_ref · (ρ / π) · (cos θi_ref / cos θi), sr⁻¹, and, with
+    noise sums, its predicted variance f² · (var S / S² + var S_ref / S_ref²)."""
+    ref = white.at(when)
+    f = fs.signal / ref * (white.rho / np.pi) * (white.cos_ref / cos_i)
+    if sums is not None:
+        var_f = f**2 * (fs.variance / fs.signal**2 + white.var_at(when) / ref**2)
+        idx = int(np.ravel(table.flat_index(pose.theta_i, pose.theta_r, pose.delta_phi))[0])
+        sums.add(idx, var_f)
+    table.add(
+        np.array([pose.theta_i]), np.array([pose.theta_r]), np.array([pose.delta_phi]),
+        f[None, :],
+    )

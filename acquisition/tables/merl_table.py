@@ -16,7 +16,6 @@ from acquisition.geometry.halfdiff import (
     flat_index_unclamped_into,
     halfdiff_rad_from_vectors,
     halfdiff_rad_reference,
-    merl_bin_angles,
     merl_bin_edges,
 )
 from acquisition.tables.accumulator import (
@@ -209,11 +208,6 @@ class MerlTable(TableStatistics):
     def edges() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bin edges (θh, θd, φd) in degrees."""
         return merl_bin_edges()
-
-    @staticmethod
-    def bin_angles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Nominal (lower-edge) bin angles (θh, θd, φd) in degrees, as MERL tabulates."""
-        return merl_bin_angles()
 
 
 # ---------------------------------------------------------------------------- numpy backend

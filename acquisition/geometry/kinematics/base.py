@@ -78,11 +78,6 @@ def wrap_deg_array(angle_deg: np.ndarray) -> np.ndarray:
     return np.where(wrapped == -180.0, 180.0, wrapped)
 
 
-def angle_between_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle between two unit vectors in degrees."""
-    return float(angle_between_deg_array(np.asarray(a)[None], np.asarray(b)[None])[0])
-
-
 def angle_between_deg_array(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles between unit vectors (…, 3) in degrees, accurate near 0° and 180°."""
     cross = np.linalg.norm(np.cross(a, b), axis=-1)

@@ -347,92 +347,130 @@ STALL_ROUNDS = 4
 """Local-search rounds without a lower tour cost before the search stops."""
 
 
+@dataclass
+class _Moves:
+    """Candidate 2-opt (kind 0: reverse t[i+1..j]) and Or-opt (kind 1: move segment
+    t[s..s+len-1] after position q, maybe reversed) moves, with their estimated gains (s) and
+    the span of tour positions each reads or rewrites."""
+
+    kind: np.ndarray
+    gain: np.ndarray
+    span_lo: np.ndarray
+    span_hi: np.ndarray
+    a1: np.ndarray
+    a2: np.ndarray
+    a3: np.ndarray
+    a4: np.ndarray
+
+
+def _candidate_moves(tour: _Tour, nbr: np.ndarray, active: np.ndarray) -> _Moves:
+    e = tour.edge_costs()
+    g2, i2, j2 = _two_opt_candidates(tour, e, nbr, active)
+    go, so, lo_, qo, ro = _or_opt_candidates(tour, e, nbr, active)
+    return _Moves(
+        kind=np.concatenate([np.zeros(len(g2), np.int8), np.ones(len(go), np.int8)]),
+        gain=np.concatenate([g2, go]),
+        span_lo=np.concatenate([i2, np.minimum(so - 1, qo)]),
+        span_hi=np.concatenate([j2 + 1, np.maximum(so + lo_, qo + 1)]),
+        a1=np.concatenate([i2, so]),
+        a2=np.concatenate([j2, lo_]),
+        a3=np.concatenate([np.zeros_like(i2), qo]),
+        a4=np.concatenate([np.zeros(len(i2), bool), ro]),
+    )
+
+
+def _non_overlapping(moves: _Moves, n: int, max_batch: int) -> np.ndarray:
+    """The best-gaining improving moves whose spans do not overlap (at most ``max_batch``)."""
+    good = np.flatnonzero(moves.gain > _EPS)
+    good = good[np.argsort(-moves.gain[good])][: 4 * max_batch]
+    occupied = np.zeros(n + 2, dtype=bool)
+    chosen = []
+    for m in good:
+        lo, hi = moves.span_lo[m], moves.span_hi[m]
+        if occupied[lo:hi + 1].any():
+            continue
+        occupied[lo:hi + 1] = True
+        chosen.append(m)
+        if len(chosen) >= max_batch:
+            break
+    return np.array(chosen, dtype=np.int64)
+
+
+def _unsafe_moves(tour: _Tour, moves: _Moves, chosen: np.ndarray) -> set[int]:
+    """The chosen moves that would create an edge with an unsafe transit."""
+    t = tour.t
+    new_a, new_b, owner = [], [], []
+    for m in chosen:
+        if moves.kind[m] == 0:
+            i, j = moves.a1[m], moves.a2[m]
+            pairs = [(t[i], t[j]), (t[i + 1], t[j + 1])]
+        else:
+            s, length, q, rev = moves.a1[m], moves.a2[m], moves.a3[m], moves.a4[m]
+            f, l_ = t[s], t[s + length - 1]
+            first, last = (l_, f) if rev else (f, l_)
+            pairs = [(t[s - 1], t[s + length]), (t[q], first), (last, t[q + 1])]
+        for x, y in pairs:
+            new_a.append(x)
+            new_b.append(y)
+            owner.append(m)
+    ok = tour.check_transits(np.array(new_a, np.int64), np.array(new_b, np.int64))
+    return set(np.array(owner)[~ok].tolist())
+
+
+def _apply(tour: _Tour, moves: _Moves, chosen: np.ndarray, skip: set[int]) -> list[int]:
+    """Apply the chosen moves except ``skip``; returns the pose nodes whose edges changed."""
+    t = tour.t
+    touched: list[int] = []
+    for m in chosen:
+        if m in skip:
+            continue
+        if moves.kind[m] == 0:
+            i, j = moves.a1[m], moves.a2[m]
+            t[i + 1:j + 1] = t[i + 1:j + 1][::-1].copy()
+            touched += [t[i], t[i + 1], t[j], t[j + 1]]
+            continue
+        s, length, q, rev = moves.a1[m], moves.a2[m], moves.a3[m], moves.a4[m]
+        seg = t[s:s + length].copy()
+        if rev:
+            seg = seg[::-1]
+        touched += [t[s - 1], t[s + length], t[q], t[q + 1], seg[0], seg[-1]]
+        if q < s:
+            mid = t[q + 1:s].copy()
+            t[q + 1:q + 1 + length] = seg
+            t[q + 1 + length:s + length] = mid
+        else:
+            mid = t[s + length:q + 1].copy()
+            t[s:s + len(mid)] = mid
+            t[s + len(mid):q + 1] = seg
+    tour.pos[t] = np.arange(tour.n + 2)
+    return touched
+
+
 def local_search(tour: _Tour, nbr: np.ndarray, deadline: float, max_batch: int = 4000,
                  active: np.ndarray | None = None) -> None:
     """Apply improving 2-opt / Or-opt moves in batches until none is left or time is up.
 
-    ``active`` limits the first round to moves around these pose nodes (default: all)."""
+    ``active`` limits the first round to moves around these pose nodes (default: all). Batched
+    moves are chosen on estimated gains; the search stops once :data:`STALL_ROUNDS` rounds stop
+    paying (moves undoing each other, or only unsafe ones left) instead of cycling until the
+    deadline."""
     n = tour.n
     active = np.arange(n) if active is None else np.asarray(active, dtype=np.int64)
     best, stalled = tour.motion_s(), 0
     while len(active) and time.monotonic() < deadline:
-        # Batched moves are chosen on estimated gains; stop once rounds stop paying (moves
-        # undoing each other, or only unsafe ones left) instead of cycling until the deadline.
         cost = tour.motion_s()
         stalled = stalled + 1 if cost >= best - _EPS else 0
         best = min(best, cost)
         if stalled >= STALL_ROUNDS:
             break
-        e = tour.edge_costs()
-        g2, i2, j2 = _two_opt_candidates(tour, e, nbr, active)
-        go, so, lo_, qo, ro = _or_opt_candidates(tour, e, nbr, active)
-        kind = np.concatenate([np.zeros(len(g2), np.int8), np.ones(len(go), np.int8)])
-        gain = np.concatenate([g2, go])
-        # span of positions each move reads or rewrites
-        span_lo = np.concatenate([i2, np.minimum(so - 1, qo)])
-        span_hi = np.concatenate([j2 + 1, np.maximum(so + lo_, qo + 1)])
-        a1 = np.concatenate([i2, so])
-        a2 = np.concatenate([j2, lo_])
-        a3 = np.concatenate([np.zeros_like(i2), qo])
-        a4 = np.concatenate([np.zeros(len(i2), bool), ro])
-        good = np.flatnonzero(gain > _EPS)
-        if not len(good):
+        moves = _candidate_moves(tour, nbr, active)
+        chosen = _non_overlapping(moves, n, max_batch)
+        if not len(chosen):
             break
-        good = good[np.argsort(-gain[good])][: 4 * max_batch]
-        occupied = np.zeros(n + 2, dtype=bool)
-        chosen = []
-        for m in good:
-            lo, hi = span_lo[m], span_hi[m]
-            if occupied[lo:hi + 1].any():
-                continue
-            occupied[lo:hi + 1] = True
-            chosen.append(m)
-            if len(chosen) >= max_batch:
-                break
-        chosen_a = np.array(chosen, dtype=np.int64)
-        # new edges of every chosen move, checked for safe transit
-        t = tour.t
-        new_a, new_b, owner = [], [], []
-        for m in chosen_a:
-            if kind[m] == 0:
-                i, j = a1[m], a2[m]
-                pairs = [(t[i], t[j]), (t[i + 1], t[j + 1])]
-            else:
-                s, length, q, rev = a1[m], a2[m], a3[m], a4[m]
-                f, l_ = t[s], t[s + length - 1]
-                first, last = (l_, f) if rev else (f, l_)
-                pairs = [(t[s - 1], t[s + length]), (t[q], first), (last, t[q + 1])]
-            for x, y in pairs:
-                new_a.append(x)
-                new_b.append(y)
-                owner.append(m)
-        ok = tour.check_transits(np.array(new_a, np.int64), np.array(new_b, np.int64))
-        bad_owner = set(np.array(owner)[~ok].tolist())
-        touched = []
-        for m in chosen_a:
-            if m in bad_owner:
-                continue
-            if kind[m] == 0:
-                i, j = a1[m], a2[m]
-                t[i + 1:j + 1] = t[i + 1:j + 1][::-1].copy()
-                touched += [t[i], t[i + 1], t[j], t[j + 1]]
-            else:
-                s, length, q, rev = a1[m], a2[m], a3[m], a4[m]
-                seg = t[s:s + length].copy()
-                if rev:
-                    seg = seg[::-1]
-                touched += [t[s - 1], t[s + length], t[q], t[q + 1], seg[0], seg[-1]]
-                if q < s:
-                    mid = t[q + 1:s].copy()
-                    t[q + 1:q + 1 + length] = seg
-                    t[q + 1 + length:s + length] = mid
-                else:
-                    mid = t[s + length:q + 1].copy()
-                    t[s:s + len(mid)] = mid
-                    t[s + len(mid):q + 1] = seg
-        tour.pos[t] = np.arange(n + 2)
+        unsafe = _unsafe_moves(tour, moves, chosen)
+        touched = _apply(tour, moves, chosen, unsafe)
         if not touched:
-            if bad_owner:
+            if unsafe:
                 continue  # forbidden edges are now known; recompute
             break
         touched_a = np.unique(np.array(touched, dtype=np.int64))

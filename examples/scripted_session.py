@@ -21,11 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from acquisition import api
-from acquisition.geometry.kinematics import Pose
-from acquisition.planning.planner import Rejection
-from acquisition.reduction.live import LiveReduction
-from acquisition.session.observers import LogObserver
-from acquisition.session.steps import Checkpoint, Expose, Move, Reference, Step
+from acquisition.api import LiveReduction, LogObserver, Pose, Rejection
+from acquisition.steps import Checkpoint, Expose, Move, Reference, Step
 
 HERE = Path(__file__).resolve().parent
 RIG = HERE / "rig-sim.toml"

@@ -75,8 +75,8 @@ def test_rig_file_chooses_the_clock(tmp_path: Path) -> None:
     scaled = load_rig(rig_with(tmp_path, 'time_scale = 4.0\nclock = "scaled"'))
     clock = make_clock(scaled)
     assert type(clock) is SimClock and clock.time_scale == 4.0
-    # Only a stepped rig charges wire time to its clock; a scaled one leaves it off.
-    for chosen, wire_time in ((rig, "clock"), (scaled, None)):
+    # A stepped rig charges wire time to its clock; a scaled one delays replies in host time.
+    for chosen, wire_time in ((rig, "clock"), (scaled, "host")):
         with open_servos(chosen, Planner(chosen), prepare=False) as servos:
             assert servos.sims
             assert {sim.wire_time for sim in servos.sims.values()} == {wire_time}

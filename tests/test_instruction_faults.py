@@ -285,6 +285,13 @@ def test_capture_on_a_bus_noisy_both_ways_gives_the_clean_table(tmp_path: Path, 
     assert noisy_bus.stats["instructions_dropped"] > 5 and noisy_bus.stats["dropped"] > 5
     assert sum(n for c in noisy_bus.wire_stats.values()
                for (d, _, inst), n in c.items() if inst == "SYNC_WRITE") > 0
+    link = api.session_status(tmp_path / "noisy", drift=False).link
+    assert set(link) == {"light_theta", "camera_theta", "camera_phi"}
+    assert all(s["retries"] > 0 and s["requests"] > s["retries"] for s in link.values())
+    assert sum(s["resends"] for s in link.values()) > 0
+    assert main(["info", str(tmp_path / "noisy"), "--no-drift"]) == 0
+    assert "light_theta:" in capsys.readouterr().out
+    assert all(s["retries"] == 0 for s in api.session_status(tmp_path / "clean").link.values())
     clean, noisy = (api.reduce(tmp_path / name).table for name in ("clean", "noisy"))
     assert clean.count.sum() > 0
     np.testing.assert_array_equal(noisy.count, clean.count)

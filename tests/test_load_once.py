@@ -6,12 +6,12 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+from conftest import EXAMPLES, TINY_PLAN_ARGS, grid_plan_text
 
 import acquisition.config.plan as plan_mod
 import acquisition.config.rig as rig_mod
 from acquisition import api
 from acquisition.planning.planner import Planner
-from conftest import EXAMPLES, TINY_PLAN_ARGS, grid_plan_text
 
 
 @pytest.fixture

@@ -24,6 +24,7 @@ from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
+from acquisition.session.status import LINK_STATS_META
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
@@ -129,9 +130,22 @@ def run_session(
         t0 = devices.device_time_s()
         engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
                                planner)
-        counts = engine.run()
+        try:
+            counts = engine.run()
+        finally:
+            record_run_health(folder, devices)
         t1 = devices.device_time_s()
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0)
+
+
+def record_run_health(folder: SessionFolder, devices: RigDevices) -> None:
+    """Keep the run's bus retries and resends per axis and any simulated collision in the
+    session's journal (``gonio info`` shows them), also when the run failed."""
+    with folder.journal() as journal:
+        runs = journal.meta(LINK_STATS_META, [])
+        journal.set_meta(LINK_STATS_META, [*runs, devices.link_stats()])
+        for line in devices.collisions():
+            journal.log("error", f"simulated collision: {line}")
 
 
 def capture(
@@ -281,7 +295,10 @@ def scripted_session(
     planner = folder.planner()
     with open_devices(rig, planner, material=mat, seed=folder.info.seed,
                       sim_faults=sim_faults, prompt=prompt) as devices:
-        yield ScriptedSession(folder, devices, planner)
+        try:
+            yield ScriptedSession(folder, devices, planner)
+        finally:
+            record_run_health(folder, devices)
 
 
 def reduce(

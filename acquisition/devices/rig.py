@@ -79,9 +79,11 @@ class RigDevices:
         seeded_camera: bool = False,
         prompt: OperatorPrompt | None = None,
         planner: Planner | None = None,
+        sim_collisions: Callable[[], list[str]] | None = None,
     ) -> None:
         self.rig = rig
         self.planner = planner or Planner(rig)
+        self._sim_collisions = sim_collisions
         self.motion = motion
         self.camera = camera
         self.holder = holder
@@ -139,6 +141,15 @@ class RigDevices:
 
     def stop_motion(self) -> None:
         self.motion.stop()
+
+    def link_stats(self) -> dict[str, dict[str, int]]:
+        """Per axis: requests, retries and goal resends on its bus since the rig was opened."""
+        return {axis: {"requests": s.requests, "retries": s.retries, "resends": s.resends}
+                for axis, s in self.motion.link_stats().items()}
+
+    def collisions(self) -> list[str]:
+        """Every contact of the arms the simulator saw (simulated rigs), one line each."""
+        return self._sim_collisions() if self._sim_collisions is not None else []
 
     def device_time_s(self) -> float | None:
         return None if self.clock is None else self.clock.now()
@@ -202,4 +213,5 @@ def open_devices(
         camera, holder = simulated_camera(rig, planner.kinematics, servos.true_joints, material,
                                           clock, seed)
         yield RigDevices(rig, servos.motion, camera, holder, clock, health=servos.health,
-                         seeded_camera=True, prompt=prompt, planner=planner)
+                         seeded_camera=True, prompt=prompt, planner=planner,
+                         sim_collisions=servos.sim_collisions)

@@ -114,6 +114,13 @@ class ServoRig:
         """The simulators' TRUE joint angles (deg); simulated buses only."""
         return true_joints(self.rig, self.sims, self.axes)
 
+    def sim_collisions(self) -> list[str]:
+        """The arms' contacts the simulators saw (one line each, oldest first)."""
+        seen: dict[str, None] = {}
+        for sim in self.sims.values():  # buses of one rig share one world
+            seen.update(dict.fromkeys(str(c) for c in sim.sim_collisions()))
+        return list(seen)
+
 
 RouteNotice = Callable[[list[dict[str, float]]], None]
 """Told the legs (joints, deg) of a move before it starts, when it has via points."""

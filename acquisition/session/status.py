@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,6 +20,21 @@ if TYPE_CHECKING:
 
 
 # ---------------------------------------------------------------------------- gonio info
+LINK_STATS_META = "link_stats"
+"""Journal meta: per run, ``{axis: {"requests", "retries", "resends"}}`` of its servo bus."""
+
+
+def summed_link_stats(runs: list[dict[str, dict[str, int]]]) -> dict[str, dict[str, int]]:
+    """Per axis, the requests, retries and resends of every run added up."""
+    out: dict[str, dict[str, int]] = {}
+    for run in runs:
+        for axis, s in run.items():
+            acc = out.setdefault(axis, {"requests": 0, "retries": 0, "resends": 0})
+            for k in acc:
+                acc[k] += int(s.get(k, 0))
+    return out
+
+
 @dataclass(frozen=True)
 class SessionStatus:
     """What ``gonio info DIR`` prints: progress, timing, errors, white-reference drift."""
@@ -41,6 +56,8 @@ class SessionStatus:
     """Warnings and errors from the journal: (host time, level, step, message)."""
     drift_pct: float | None
     """Peak-to-peak change of the white reference's ROI signal, % of its mean."""
+    link: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Per axis over all runs: requests, retries and goal resends on its servo bus."""
 
     @property
     def total(self) -> int:
@@ -61,6 +78,7 @@ class SessionStatus:
             "events": [{"at": at, "level": lv, "step": st, "message": msg}
                        for at, lv, st, msg in self.events],
             "drift_pct": self.drift_pct,
+            "link": self.link,
         }
 
     def lines(self, max_events: int = 10) -> list[str]:
@@ -87,6 +105,10 @@ class SessionStatus:
             out.append(f"drift     white reference {self.drift_pct:.2f} % peak to peak")
         if info.calibration:
             out.append(f"calib     {self.folder.path / info.calibration}")
+        for i, (axis, s) in enumerate(self.link.items()):
+            pct = 100.0 * s["retries"] / s["requests"] if s["requests"] else 0.0
+            out.append(f"{'bus' if i == 0 else '':10s}{axis}: {s['requests']} requests, "
+                       f"{s['retries']} retries ({pct:.1f} %), {s['resends']} resends")
         shown = self.events[-max_events:]
         out.append(f"errors    {len(self.events)} warning/error event(s)"
                    + (f", last {len(shown)}:" if shown else ""))
@@ -104,6 +126,7 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
         records = list(journal.steps())
         counts = journal.counts()
         all_events = journal.events()
+        link = summed_link_stats(journal.meta(LINK_STATS_META, []))
     by_kind: dict[str, tuple[int, int]] = {}
     for r in records:
         d, t = by_kind.get(r.kind, (0, 0))
@@ -133,5 +156,5 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
         folder, counts, by_kind, busy, span, device,
         sum(1 for e in all_events if e[3].startswith("run started")),
         sum(1 for r in records if r.attempts > 1),
-        [e for e in all_events if e[1] in ("warning", "error")], drift_pct,
+        [e for e in all_events if e[1] in ("warning", "error")], drift_pct, link,
     )

@@ -52,7 +52,7 @@ def start_simulated_buses(
         yield {}
         return
     with SimRig(rig.raw, clock=clock, faults=list(sim_faults), seed=seed, strict_baud=True,
-                wire_time="clock" if isinstance(clock, SteppedClock) else False,
+                wire_time="auto",  # on the stepped clock: charged to it
                 positions_ticks={a: start_ticks[a] for a, cfg in rig.axes.items()
                                  if cfg.bus in names},
                 buses=names) as sim_rig:

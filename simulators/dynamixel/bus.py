@@ -22,7 +22,9 @@ scripted one-shot losses (:meth:`SimServoBus.sim_drop_next`) for deterministic t
 reports through return values, counters (``stats``, ``instructions``, ``wire_stats``) and
 :mod:`logging`, never by printing; :mod:`simulators.dynamixel.serve` runs it in the foreground.
 
-Wire time (``wire_time``): off by default (fast tests). ``"host"`` (or ``True``) delays each
+Wire time (``wire_time``): charged by default (``"auto"``: ``"clock"`` on a clock that does not
+follow host time, else ``"host"``), as a real bus takes it; ``False`` turns it off (a test that
+measures only the pty's overhead). ``"host"`` (or ``True``) delays each
 reply in host time by the instruction's and the reply's bytes on the wire, for clients on a
 real-time or scaled clock. ``"clock"`` charges them to the shared simulated clock instead, for
 a discrete-event :class:`~simulators.clock.SteppedClock`: every instruction advances the clock
@@ -92,14 +94,16 @@ class _ScriptedLoss:
     corrupt: bool
 
 
-def _wire_time_mode(wire_time: bool | str | None) -> WireTime | None:
+def _wire_time_mode(wire_time: bool | str | None, clock: object = None) -> WireTime | None:
+    if wire_time == "auto":
+        return "host" if getattr(clock, "follows_host", True) else "clock"
     if wire_time is None or wire_time is False:
         return None
     if wire_time is True:
         return "host"
     if wire_time in ("host", "clock"):
         return wire_time  # type: ignore[return-value]
-    raise ConfigError(f"wire_time must be False, True, 'host' or 'clock', got {wire_time!r}")
+    raise ConfigError(f"wire_time must be 'auto', False, True, 'host' or 'clock', got {wire_time!r}")
 
 
 class SimServoBus:
@@ -127,7 +131,8 @@ class SimServoBus:
         delays each reply in host time by the instruction's and its own bytes; ``"clock"``
         advances ``clock`` by each instruction's bytes at ``baud`` and each reply's Return
         Delay Time plus bytes (meant for a :class:`~simulators.clock.SteppedClock`; replies
-        are then not delayed for it in host time). Off (``False``) by default: fast tests.
+        are then not delayed for it in host time). ``"auto"`` (default): ``"clock"`` when
+        ``clock`` does not follow host time, else ``"host"``. ``False``: off (the pty alone).
     strict_fault_ids:
         Refuse fault specs naming an ID that is not on this bus. Off by default, so that a rig
         with several buses can hand the same spec list to each; check the IDs against the
@@ -171,7 +176,7 @@ class SimServoBus:
         seed: int = 0,
         strict_baud: bool = False,
         positions: Mapping[int, float] | None = None,
-        wire_time: bool | WireTime = False,
+        wire_time: bool | WireTime | Literal["auto"] = "auto",
         strict_fault_ids: bool = False,
         solids: SolidRig | None = None,
         stall_trip_s: float = 1.0,
@@ -199,7 +204,7 @@ class SimServoBus:
             raise ConfigError(f"fault specs name servo IDs {unknown} that are not on the bus "
                               f"{sorted(id_list)}")
         self.strict_baud = strict_baud
-        self.wire_time: WireTime | None = _wire_time_mode(wire_time)
+        self.wire_time: WireTime | None = _wire_time_mode(wire_time, self.clock)
         """``"host"``, ``"clock"`` or None (off), see the ``wire_time`` parameter."""
         if stall_trip_s < 0:
             raise ConfigError(f"stall_trip_s must be >= 0 s, got {stall_trip_s}")

@@ -28,7 +28,7 @@ import math
 import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from drivers.errors import ConfigError
 from simulators.clock import SimClock
@@ -90,7 +90,7 @@ class SimRig:
         faults: Iterable[str | Fault] = (),
         seed: int = 0,
         strict_baud: bool = False,
-        wire_time: bool | WireTime = False,
+        wire_time: bool | WireTime | Literal["auto"] = "auto",
         stall_trip_s: float = 1.0,
         physics_tick_s: float = DEFAULT_TICK_S,
         positions_deg: Mapping[str, float] | None = None,

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.config.toml import Section, load_toml
-from acquisition.geometry.kinematics import KINEMATICS, Kinematics
+from acquisition.geometry.kinematics import KINEMATICS, Kinematics, Pose
 from acquisition.geometry.kinematics.lightstage import LightStage
 from drivers.errors import ConfigError
 
@@ -113,6 +113,19 @@ class WhiteReference:
 
 
 @dataclass(frozen=True)
+class HomeConfig:
+    """``[home]``: the rig's home pose, as a pose or as joints (exactly one is set).
+
+    ``gonio home`` moves there; without a ``[home]`` table the home pose is the park pose
+    (the white reference)."""
+
+    pose_deg: tuple[float, float, float] | None = None
+    """(θi, θr, Δφ) in degrees; the joints are the kinematics' first safe solution."""
+    joints_deg: dict[str, float] | None = None
+    """``{axis: deg}`` for every axis."""
+
+
+@dataclass(frozen=True)
 class ArmConfig:
     """One arm's collision volume: a capsule (a sphere of ``radius_m`` swept along the arm's
     direction from ``from_m`` to ``to_m`` metres from the sample centre)."""
@@ -177,6 +190,8 @@ class RigConfig:
     bus_cycle_s: float = 0.03
     """Per-move bus time (s): safety read, goal write, and the polls that confirm arrival."""
     sample: SampleConfig = field(default_factory=SampleConfig)
+    home: HomeConfig | None = None
+    """``[home]``: the declared home pose; None means the park pose."""
     sim_clock: str = "stepped"
     """``[simulation] clock``: ``"stepped"`` (discrete-event: simulated time is the hardware
     timeline, whatever the host's load) or ``"scaled"`` (``time_scale`` × host time)."""
@@ -196,7 +211,7 @@ class RigConfig:
 
 
 _RIG_KEYS = {"format_version", "name", "kinematics", "simulation", "buses", "axes", "geometry",
-             "light", "camera", "white_reference", "arms", "sample", "light_stage", "timing", "dmx"}
+             "light", "camera", "white_reference", "arms", "sample", "light_stage", "timing", "dmx", "home"}
 
 
 def load_rig(path: str | Path) -> RigConfig:
@@ -228,8 +243,10 @@ def load_rig(path: str | Path) -> RigConfig:
     footprint = _parse_footprint(sample, light, cam)
     timing = top.section("timing", {})
     timing.check_keys({"bus_cycle_s"})
+    home_sec = top.section("home", {})
+    home = _parse_home(home_sec, axes, fixed) if "home" in top else None
 
-    return RigConfig(
+    rig = RigConfig(
         path=path,
         name=top.get("name", str, path.stem),
         kinematics_name=kin,
@@ -251,7 +268,11 @@ def load_rig(path: str | Path) -> RigConfig:
         light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
         bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes), min=0.0),
         sample=sample_cfg,
+        home=home,
     )
+    if home is not None and home.pose_deg is not None:
+        _check_home_reachable(home_sec, rig, home.pose_deg)
+    return rig
 
 
 def _parse_header(top: Section) -> str:
@@ -368,6 +389,54 @@ def _parse_white_reference(wr: Section) -> WhiteReference:
         theta_r=wr.number("theta_r_deg", 45.0, min=0, max=89),
         delta_phi=wr.number("delta_phi_deg", 180.0, min=-180, max=360),
     )
+
+
+HOME_POSE_KEYS = ("theta_i_deg", "theta_r_deg", "delta_phi_deg")
+"""The pose form of ``[home]``."""
+
+
+def _parse_home(sec: Section, axes: Mapping[str, AxisConfig], fixed: bool) -> HomeConfig:
+    """``[home]``: ``theta_i_deg``, ``theta_r_deg``, ``delta_phi_deg`` (a pose) or
+    ``joints = {axis = deg, …}`` naming every axis within its limits; not both."""
+    if fixed:
+        raise sec.error(None, "the light stage has no moving axes and so no home pose: "
+                              "remove the [home] table")
+    sec.check_keys({*HOME_POSE_KEYS, "joints"})
+    given = [k for k in HOME_POSE_KEYS if k in sec]
+    if "joints" in sec:
+        if given:
+            raise sec.error(given[0], "give the home pose either as theta_i_deg, theta_r_deg, "
+                                      "delta_phi_deg or as joints, not both")
+        joints = sec.section("joints")
+        unknown = [n for n in joints.names() if n not in axes]
+        if unknown:
+            raise joints.error(unknown[0], f"names no axis of this rig (axes: {', '.join(axes)})")
+        missing = [n for n in axes if n not in joints]
+        if missing:
+            raise joints.error(missing[0], "is missing: give every axis a home angle "
+                                           f"({', '.join(axes)})")
+        out = {}
+        for name, cfg in axes.items():
+            out[name] = joints.number(name, min=cfg.min_deg, max=cfg.max_deg)
+        return HomeConfig(joints_deg=out)
+    if not given:
+        raise sec.error(None, "is empty: give theta_i_deg, theta_r_deg, delta_phi_deg, or "
+                              "joints = {axis = deg, …}")
+    theta_i = sec.number("theta_i_deg", min=0, max=89)
+    theta_r = sec.number("theta_r_deg", min=0, max=89)
+    delta_phi = sec.number("delta_phi_deg", min=-180, max=360)
+    return HomeConfig(pose_deg=(theta_i, theta_r, delta_phi))
+
+
+def _check_home_reachable(sec: Section, rig: RigConfig, pose_deg: tuple[float, float, float]) -> None:
+    """The home pose must have a joint solution within the axes' limits (safety — arm
+    collisions, the shadow cone — is the planner's, checked when a console opens)."""
+    kinematics = rig.kinematics()
+    if not any(kinematics.within_limits(c) for c in kinematics.inverse_candidates(Pose(*pose_deg))):
+        theta_i, theta_r, delta_phi = pose_deg
+        raise sec.error(None, f"pose θi={theta_i:g}° θr={theta_r:g}° Δφ={delta_phi:g}° is outside "
+                              f"the joint limits of the {kinematics.name} rig: choose a reachable "
+                              "home pose")
 
 
 def _parse_footprint(sample: Section, light: Section, cam: Section) -> FootprintConfig:

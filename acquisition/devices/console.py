@@ -8,7 +8,8 @@ scripts use it directly::
         print(format_status(con.status()))
         con.jog("camera_phi", 10.0)                  # relative, degrees
         con.move_pose(30.0, 45.0, 180.0)            # θi, θr, Δφ in degrees
-        con.park()
+        print(format_pose(con.pose()))              # the pose the joints realise
+        con.home()                                  # the rig file's [home] (default: park)
 
 Every move goes through the planner's guard (limits, arm collisions, shadow cone) inside the
 :class:`~drivers.dynamixel.MotionController`, after a temperature/voltage check that refuses
@@ -18,9 +19,13 @@ stays on) and raises :class:`~drivers.errors.SafetyStop`.
 On a rig file whose bus is ``simulated = true`` each :func:`open_console` starts a FRESH
 simulator at the park pose with torque on: its servos live only as long as the process, so
 ``gonio jog`` followed by ``gonio status`` shows the park pose again. This still checks the rig
-file, the guard and the driver paths; keep one :class:`Console` open to script a sequence.
+file, the guard and the driver paths; keep one :class:`Console` open to script a sequence
+(``gonio console`` does: one connection for a whole shell session).
 On a real rig the console changes nothing when it opens: torque stays as it was (a servo in
 hardware error stays readable), and profiles are written just before a move.
+
+A rig with no moving axes (the light stage) has nothing for these verbs: :func:`open_console`
+and :func:`scan_rig` refuse it with one :class:`~drivers.errors.ConfigError` line.
 """
 
 from __future__ import annotations
@@ -32,13 +37,14 @@ from pathlib import Path
 
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.devices.health import HealthLimits
-from acquisition.devices.servos import RouteNotice, ServoRig, open_servos, park_ticks
+from acquisition.devices.servos import RouteNotice, ServoRig, open_servos, park_joints, park_ticks
 from acquisition.geometry.kinematics import Pose
-from acquisition.planning.planner import Planner
+from acquisition.geometry.kinematics.lightstage import LightStage
+from acquisition.planning.planner import Planner, Rejection
 from acquisition.simworld.servos import scaled_clock, start_simulated_buses
 from drivers.dynamixel import COMMON_BAUD_RATES, ServoBus
 from drivers.dynamixel.codes import HARDWARE_BITS
-from drivers.errors import ConfigError, LimitError, SafetyStop
+from drivers.errors import ConfigError, SafetyStop
 
 ALL_IDS = range(253)
 """Every servo ID a scan can find (0–252)."""
@@ -57,6 +63,66 @@ class AxisStatus:
     voltage_v: float
     errors: tuple[str, ...]
     torque_on: bool
+
+
+NO_AXES_VERBS = {
+    "status": "report the status of", "scan": "scan", "jog": "jog", "move": "move", "home": "home",
+    "park": "park", "torque": "switch torque on or off for", "reboot": "reboot",
+    "console": "drive from a console",
+}
+"""How each verb reads in the refusal of a rig with no moving axes ("nothing to …")."""
+
+
+def require_moving_axes(rig: RigConfig, verb: str) -> None:
+    """Refuse ``verb`` on a rig without servo axes (the light stage), in one line.
+
+    Raises
+    ------
+    ConfigError
+        ``<rig>: the light stage has no moving axes: nothing to <verb>; …``.
+    """
+    if rig.axes and rig.kinematics_name != LightStage.name:
+        return
+    what = "the light stage" if rig.kinematics_name == LightStage.name else "the rig"
+    raise ConfigError(f"{rig.path}: {what} has no moving axes: nothing to "
+                      f"{NO_AXES_VERBS.get(verb, verb)}; its lights are driven by "
+                      "gonio lightstage capture")
+
+
+def home_joints(rig: RigConfig, planner: Planner) -> dict[str, float]:
+    """Joints (deg) of the rig's home pose: its ``[home]`` table, else the park pose.
+
+    A pose is realised by the first joint solution within the limits that the guard finds
+    safe (as the park pose is).
+
+    Raises
+    ------
+    ConfigError
+        The declared home pose is not safe (arm collision, shadow cone, elevation), named.
+    """
+    home = rig.home
+    if home is None:
+        return park_joints(rig, planner)
+    problem: Rejection | None = None
+    if home.joints_deg is not None:
+        joints = dict(home.joints_deg)
+        problem = planner.joint_problem(joints)
+        if problem is None:
+            return joints
+        what = "joints " + ", ".join(f"{n} = {v:g}" for n, v in joints.items())
+    else:
+        assert home.pose_deg is not None  # one of the two forms is set (load_rig)
+        kin = planner.kinematics
+        for joints in (c for c in kin.inverse_candidates(Pose(*home.pose_deg))
+                       if kin.within_limits(c)):
+            problem = planner.joint_problem(joints)
+            if problem is None:
+                return joints
+        theta_i, theta_r, delta_phi = home.pose_deg
+        what = f"pose θi={theta_i:g}° θr={theta_r:g}° Δφ={delta_phi:g}°"
+    why = (f"is not safe ({problem.reason.value}: {problem.detail})" if problem is not None
+           else "is outside the joint limits")
+    raise ConfigError(f"{rig.path}: [home] {what} {why}: choose a safe home pose")
 
 
 def error_names(bits: int) -> tuple[str, ...]:
@@ -84,6 +150,8 @@ class Console:
         self.health_wait_s = health_wait_s
         self.on_route = on_route
         """Told the legs (joints, deg) of a routed move before it starts (the CLI prints them)."""
+        self.home_deg = home_joints(servos.rig, servos.planner)
+        """Joints (deg) of the home pose (see :func:`home_joints`)."""
 
     @property
     def rig(self) -> RigConfig:
@@ -116,6 +184,19 @@ class Console:
     def positions(self) -> dict[str, float]:
         """Read-back joints (deg)."""
         return self.servos.motion.positions_deg()
+
+    def pose(self, joints: Mapping[str, float] | None = None) -> Pose:
+        """The (θi, θr, Δφ) pose (deg) that ``joints`` (default: the read-back ones) realise."""
+        return self.servos.planner.kinematics.forward(self.positions() if joints is None else joints)
+
+    def scan(self, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
+             ids: Iterable[int] = ALL_IDS) -> list[ScanResult]:
+        """Scan every open bus (each returns to its own baud rate afterwards)."""
+        bauds, ids = list(bauds), list(ids)
+        if not bauds:
+            raise ConfigError("scan: give at least one baud rate")
+        return [ScanResult(name, bus.port_name, bus.scan(ids, bauds))
+                for name, bus in self.servos.buses.items()]
 
     # ------------------------------------------------------------------ moves
     def move_joints(self, targets: Mapping[str, float]) -> dict[str, float]:
@@ -162,19 +243,11 @@ class Console:
         return self.move_joints(joints)
 
     def home(self, axes: Sequence[str] | None = None) -> dict[str, float]:
-        """Move the named axes (all if None) to 0°, the rig file's ``zero_tick``.
-
-        The guard applies: where every axis at 0° is not a safe pose (on out-of-plane arcs both
-        arms at the zenith collide), name the axes to home.
-        """
-        names = list(axes) if axes else self.axis_names
-        try:
-            return self.move_joints(dict.fromkeys((self._axis(n) for n in names), 0.0))
-        except LimitError as exc:
-            if axes:
-                raise
-            raise type(exc)(f"{exc}; every axis at 0° is not a safe pose on this rig: name the "
-                            f"axes to home, e.g. `gonio home {names[-1]}`") from None
+        """Move every axis (routed round the other arm when needed) to the home pose, the rig
+        file's ``[home]`` (default: the park pose), or only the named ``axes`` to their home
+        joint angles (the others hold; the guard checks the resulting pose)."""
+        names = [self._axis(n) for n in axes] if axes else self.axis_names
+        return self.move_joints({n: self.home_deg[n] for n in names})
 
     def park(self) -> dict[str, float]:
         """Move to the park pose (the white-reference pose, where captures start and end)."""
@@ -220,18 +293,25 @@ def open_console(
     seed: int = 0,
     health_wait_s: float = 0.0,
     health_limits: HealthLimits | None = None,
+    verb: str = "move",
 ) -> Iterator[Console]:
     """Open the rig's servo buses for operator commands (see the module notes on simulation).
+
+    ``verb`` names what the console is opened for, in the refusal of a rig without moving
+    axes (see :data:`NO_AXES_VERBS`).
 
     Raises
     ------
     ConfigError
-        Bad rig file, or the servos answer at another baud rate than the rig file's (named).
+        Bad rig file (a home pose the guard refuses included), a rig without moving axes, or
+        the servos answer at another baud rate than the rig file's (named).
     CommunicationError
         The port does not open, or servos stay silent (their IDs and axes are named).
     """
     rig = load_rig(rig_path)
+    require_moving_axes(rig, verb)
     planner = Planner(rig)
+    home_joints(rig, planner)  # a home pose the guard refuses is a rig-file error
     simulated = any(b.simulated for b in rig.buses.values())
     with open_servos(rig, planner, sim_faults=sim_faults, seed=seed, prepare=simulated,
                      health_limits=health_limits) as servos:
@@ -270,8 +350,11 @@ def scan_port(port: str, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
 def scan_rig(rig_path: str | Path, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
              ids: Iterable[int] = ALL_IDS, sim_faults: Sequence[str] = (), seed: int = 0
              ) -> list[ScanResult]:
-    """Scan every bus of a rig file; a simulated bus is started (at its park pose) and scanned."""
+    """Scan every bus of a rig file; a simulated bus is started (at its park pose) and scanned.
+
+    Raises ConfigError on a rig without moving axes (the light stage)."""
     rig = load_rig(rig_path)
+    require_moving_axes(rig, "scan")
     bauds, ids = list(bauds), list(ids)
     with ExitStack() as stack:
         sims = {}
@@ -304,6 +387,37 @@ def format_status(rows: Sequence[AxisStatus]) -> str:
                          for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
 
     return "\n".join(line(r) for r in (header, *body))
+
+
+def format_pose(pose: Pose) -> str:
+    """One line: the (θi, θr, Δφ) the read-back joints realise (Δφ is undefined, and shown
+    so, when the light or the camera is at the sample normal)."""
+    normal = min(pose.theta_i, pose.theta_r) < POSE_NORMAL_DEG
+    delta_phi = "- (a direction is at the normal)" if normal else f"{pose.delta_phi:.2f}°"
+    return f"pose: θi {pose.theta_i:.2f}°  θr {pose.theta_r:.2f}°  Δφ {delta_phi}"
+
+
+POSE_NORMAL_DEG = 0.01
+"""Below this θi or θr (deg) a direction is at the normal and Δφ means nothing."""
+
+
+def pose_fields(pose: Pose) -> dict[str, float | None]:
+    """The pose as ``{"theta_i_deg", "theta_r_deg", "delta_phi_deg"}`` (Δφ None when the light
+    or the camera is at the normal)."""
+    normal = min(pose.theta_i, pose.theta_r) < POSE_NORMAL_DEG
+    return {"theta_i_deg": pose.theta_i, "theta_r_deg": pose.theta_r,
+            "delta_phi_deg": None if normal else pose.delta_phi}
+
+
+def format_joints(joints: Mapping[str, float], digits: int = 1) -> str:
+    """``light_theta 33.0° camera_theta 50.0° …``."""
+    return " ".join(f"{name} {deg:.{digits}f}°" for name, deg in joints.items())
+
+
+def format_route(legs: Sequence[Mapping[str, float]]) -> str:
+    """One line for a routed move: ``route: 3 legs via A → B → target``."""
+    via = " → ".join(format_joints(leg) for leg in legs[:-1])
+    return f"route: {len(legs)} legs via {via} → {format_joints(legs[-1])}"
 
 
 def format_scan(results: Sequence[ScanResult]) -> str:

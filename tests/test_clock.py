@@ -94,7 +94,8 @@ def test_sync_read_and_write_cost_their_wire_time() -> None:
         assert clock.now() - t0 == pytest.approx(instruction + replies, abs=1e-9)
         assert instruction == pytest.approx(17 * BYTE_S) and replies > 3 * 15 * BYTE_S
         t0 = clock.now()
-        bus.write_goals({1: 2000, 2: 2048, 3: 2100})  # no reply; the next read waits behind it
+        with bus.permit_goals():  # as the motion controller does, after its guard
+            bus.write_goals({1: 2000, 2: 2048, 3: 2100})  # no reply; the next read waits behind it
         bus.read_positions([1])
         one = sum(sync_read_s(1, 4, 57600, factory_delay_s))
         assert clock.now() - t0 == pytest.approx((14 + 15) * BYTE_S + one, abs=1e-9)

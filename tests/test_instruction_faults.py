@@ -209,7 +209,8 @@ def test_a_goal_that_never_arrives_is_one_line_naming_axis_and_port(clock):
 def test_stop_goals_are_read_back_and_a_lost_one_rewritten(clock):
     with SimServoBus([1, 2], clock=clock) as sim, ServoBus(sim.port) as bus:
         mc = controller(bus, clock)
-        bus.write_goals({2: 3000})
+        with bus.permit_goals():  # as the motion controller does, after its guard
+            bus.write_goals({2: 3000})
         bus.ping(2)  # the sync write has been acted on
         clock.advance(0.1)  # mid-move
         sim.sim_drop_next(2, ["SYNC_WRITE"])

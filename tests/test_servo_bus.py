@@ -91,7 +91,8 @@ def test_scan_finds_servos_at_their_baud_rate(clock):
 
 def test_sync_write_then_sync_read(bus, clock):
     bus.set_torque([1, 2, 3], True)
-    bus.write_goals({1: 1000, 2: 3000, 3: -0 + 2500})
+    with bus.permit_goals():  # as the motion controller does, after its guard
+        bus.write_goals({1: 1000, 2: 3000, 3: -0 + 2500})
     settle(bus, [1, 2, 3])
     assert bus.read_positions([1, 2, 3]) == {1: 1000, 2: 3000, 3: 2500}
     motion = bus.read_motion([2])[2]
@@ -198,3 +199,14 @@ def test_latency_warning(tmp_path):
 def test_no_latency_warning_on_a_pty(sim):
     assert latency_timer_ms(sim.port) is None
     assert latency_warning(sim.port) is None
+
+
+def test_goal_positions_are_written_only_inside_the_controllers_permit(sim) -> None:
+    from drivers.errors import LimitError
+
+    with ServoBus(sim.port) as bus:
+        for write in (lambda: bus.write_goals({1: 1000}), lambda: bus.write_goal(1, 1000),
+                      lambda: bus.write(1, 116, 4, 1000), lambda: bus.sync_write(114, 4, {1: 5})):
+            with pytest.raises(LimitError, match="outside the motion controller"):
+                write()
+        bus.write(1, 65, 1, 1)  # anything else (here the LED) is written as before

@@ -38,7 +38,7 @@ import fcntl
 import select
 import threading
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import serial
@@ -66,7 +66,7 @@ from drivers.dynamixel.codes import (
     hardware_error,
     packet_error_text,
 )
-from drivers.errors import CommunicationError, ConfigError
+from drivers.errors import CommunicationError, ConfigError, LimitError
 
 #: Baud rates the SDK's PortHandler accepts.
 SDK_BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
@@ -208,6 +208,7 @@ class ServoBus:
         self.lock_port = lock_port
         self._axis_names: dict[int, str] = dict(axis_names or {})
         self._lock = threading.RLock()
+        self._goal_permits = 0  # > 0 while the motion controller writes goals it has guarded
         self._port: PortHandler | None = None
         self._ph = PacketHandler(2.0)
         self.stats = {"transfers": 0, "retries": 0, "resends": 0}
@@ -401,9 +402,32 @@ class ServoBus:
         self._check(servo_id, error, f"a read of address {address}", check_alert)
         return int.from_bytes(data, "little", signed=signed)
 
+    @contextlib.contextmanager
+    def permit_goals(self) -> Iterator[None]:
+        """Allow Goal Position writes inside the block. Only
+        :class:`~drivers.dynamixel.motion.MotionController` opens it, after its guard has
+        checked the goals: no other path writes a goal position."""
+        with self._lock:
+            self._goal_permits += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._goal_permits -= 1
+
+    def _refuse_unguarded_goal(self, address: int, size: int) -> None:
+        if address < Addr.GOAL_POSITION + 4 and address + size > Addr.GOAL_POSITION \
+                and not self._goal_permits:
+            raise LimitError(
+                f"{self.port_name}: refused to write Goal Position outside the motion "
+                "controller: every move goes through its guard (MotionController.move_to)"
+            )
+
     def write(self, servo_id: int, address: int, size: int, value: int, *,
               check_alert: bool = True) -> None:
-        """Write one item (``size`` bytes) and check the servo's status reply."""
+        """Write one item (``size`` bytes) and check the servo's status reply (Goal Position
+        only inside :meth:`permit_goals`)."""
+        self._refuse_unguarded_goal(address, size)
         _, error = self._exchange(servo_id, INST_WRITE, _le(address, 2) + _le(value, size))
         self._check(servo_id, error, f"writing {value} to address {address}", check_alert)
 
@@ -543,9 +567,11 @@ class ServoBus:
             port.is_using = False
 
     def sync_write(self, address: int, size: int, values: Mapping[int, int]) -> None:
-        """One SYNC_WRITE of ``size``-byte ``values`` ``{id: value}`` (no reply expected)."""
+        """One SYNC_WRITE of ``size``-byte ``values`` ``{id: value}`` (no reply expected; Goal
+        Position only inside :meth:`permit_goals`)."""
         if not values:
             return
+        self._refuse_unguarded_goal(address, size)
         result = COMM_TX_FAIL
         for attempt in range(self.retries + 1):
             with self._lock:

@@ -34,7 +34,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Protocol, runtime_checkable
 
 from drivers.dynamixel.axis import Axis
@@ -217,7 +217,7 @@ class MotionController:
         generation = self._stops
         self._known = None  # until the move is confirmed
         try:
-            with self._goal_lock:
+            with self._goal_lock, self._permits():
                 self._check_generation(generation, goals)
                 for bus, names in groups.items():
                     bus.write_goals({self._axes[n].servo_id: goals[n] for n in names})
@@ -230,6 +230,14 @@ class MotionController:
         rest = [n for n in self._axes if n not in reached]
         self._known = {**(self.positions_deg(rest) if rest else {}), **reached}
         return reached
+
+    @contextlib.contextmanager
+    def _permits(self) -> Iterator[None]:
+        """Goal writes allowed on every bus of this controller (its guard checked them)."""
+        with contextlib.ExitStack() as stack:
+            for bus in {id(b): b for b in self._bus.values()}.values():
+                stack.enter_context(bus.permit_goals())
+            yield
 
     def _check_ready(self, groups: Mapping[ServoBus, list[str]]) -> None:
         for bus, names in groups.items():
@@ -295,7 +303,7 @@ class MotionController:
         """A partial move (some goals never arrived): stop every axis, wait until all are at
         rest, check the move again from the read-back pose, then send every goal again (the
         lost ones counted as resends; ``acknowledged``: by WRITEs whose replies prove arrival)."""
-        with self._goal_lock:
+        with self._goal_lock, self._permits():
             self._check_generation(generation, goals)
             try:
                 self._stop_all()
@@ -305,7 +313,7 @@ class MotionController:
                 raise self._never_arrived(bus, sid, goals[name]) from None
         self._wait_at_rest(groups, generation, goals)
         self.guard.check_move(self.positions_deg(), dict(targets))
-        with self._goal_lock:
+        with self._goal_lock, self._permits():
             self._check_generation(generation, goals)
             for bus, names in groups.items():
                 ids = {self._axes[n].servo_id: goals[n] for n in names}
@@ -364,7 +372,7 @@ class MotionController:
         All positions are read first (one sync read per bus), then all goals written (one sync
         write per bus), so the axes stop within one control cycle of each other.
         """
-        with self._goal_lock:
+        with self._goal_lock, self._permits():
             self._stops += 1
             self._known = None
             return self._stop_all()

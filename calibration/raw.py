@@ -20,6 +20,7 @@ Non-Bayer files (stacked scanners, X-Trans, foveon, 4-colour CFAs) and corrupt f
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import warnings
@@ -174,9 +175,15 @@ def _tag_values(tag: tifffile.TiffTag) -> np.ndarray:
 
 
 def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
-    """Black-level and area tags of a DNG's CFA image IFD; None if the file is not a DNG."""
+    """Black-level and area tags of a DNG's CFA image IFD; None if the file is not a DNG.
+
+    tifffile's own log lines about a damaged file are silenced: the RAW decode that follows
+    reports the damage in one line of gonio's.
+    """
     import tifffile
 
+    quiet = logging.getLogger("tifffile")
+    was, quiet.disabled = quiet.disabled, True
     try:
         with tifffile.TiffFile(path) as tif:
             first = tif.pages.first
@@ -193,6 +200,8 @@ def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
             return {}
     except Exception:  # not a TIFF container (CR3, RAF, ...): not a DNG either
         return None
+    finally:
+        quiet.disabled = was
 
 
 def _dng_stated_black(tags: dict[int, np.ndarray], origin: tuple[int, int]) -> np.ndarray | None:

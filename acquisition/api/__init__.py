@@ -26,6 +26,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.planning.planner": ("Planner", "Sweep", "Rejection", "Reason"),
     "acquisition.session.folder": ("SessionFolder",),
     "acquisition.session.status": ("SessionStatus", "session_status"),
+    "acquisition.session.verify": ("VerifyReport", "verify_session"),
     "acquisition.session.journal": ("StepRecord",),
     "acquisition.session.observers": (
         "Observer", "LogObserver", "ProgressObserver", "CallbackObserver",
@@ -135,6 +136,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         ProgressObserver,
     )
     from acquisition.session.status import SessionStatus, session_status
+    from acquisition.session.verify import VerifyReport, verify_session
     from acquisition.simworld.materials import DEFAULT_MATERIAL
     from acquisition.simworld.serve import serve_dmx, serve_rig, serve_servos
     from acquisition.tables import IsotropicTable, MerlTable

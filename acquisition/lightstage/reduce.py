@@ -30,6 +30,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
 from acquisition.lightstage.capture import META_KEY
+from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.image import (
     DEFAULT_MIN_COS,
     FrameSamples,
@@ -130,13 +131,17 @@ def led_calibration(session_dir: str | Path) -> LedCalibration:
     n = len(rig.light_stage.light_dirs) if rig.light_stage else 0
     scale, pixels = np.full((n, 3), np.nan), np.zeros(n, dtype=int)
     rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
+    check = FrameCheck(folder.path)
     for rec in records:
         k = light_of(rec)
         if rec.kind != REFERENCE or k is None:
             continue
-        image = load_frame(folder, rec, dark)
+        image = check.load(rec.frame, lambda rec=rec: load_frame(folder, rec, dark))
+        if image is None:
+            continue
         geo = frame_geometry_of(rig, rec, image.valid.shape, "flat")
         scale[k], pixels[k] = white_calibration(image, geo, rig.camera.roi, rho)
+    check.raise_if_any()
     if not pixels.any():
         raise SessionError(f"{folder.path} has no white-reference OLAT frame: resume the capture")
     return LedCalibration(scale, pixels)
@@ -150,13 +155,17 @@ def iter_lightstage_samples(session_dir: str | Path, *, min_cos: float = DEFAULT
     cal = calibration or led_calibration(folder.path)
     records = _done(folder)
     dark = dark_rate(folder, records)
+    check = FrameCheck(folder.path)
     for rec in records:
         k = light_of(rec)
         if rec.kind != POSE or k is None:
             continue
-        image = load_frame(folder, rec, dark)
+        image = check.load(rec.frame, lambda rec=rec: load_frame(folder, rec, dark))
+        if image is None:
+            continue
         geo = frame_geometry_of(rig, rec, image.valid.shape)
         yield frame_samples(image, geo, cal.require(k, str(folder.path)), rec.step, min_cos)
+    check.raise_if_any()
 
 
 def reduce_lightstage_session(

@@ -47,6 +47,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
 from acquisition.geometry.kinematics import poses_from_directions
+from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
 from acquisition.reduction.point import Reduction, find_bundle, linearize_with_variance, session_provenance
 from acquisition.session.engine import POSE, REFERENCE
@@ -182,9 +183,12 @@ def iter_session_samples(
     if not records:
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
     rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
+    check = FrameCheck(folder.path)
     steps, cals = [], []
     for rec in (r for r in records if r.kind == REFERENCE):
-        image = _linear(folder, rec, cb)
+        image = check.load(rec.frame, lambda rec=rec: _linear(folder, rec, cb))
+        if image is None:
+            continue
         geo = _geometry(rig, rec, image.valid.shape, "flat")
         cal, n = white_calibration(image, geo, rig.camera.roi, rho)
         if n == 0:
@@ -195,17 +199,22 @@ def iter_session_samples(
         steps.append(rec.step)
         cals.append(cal)
     if not cals:
+        check.raise_if_any()
         raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
     ref_steps, ref_cals = np.array(steps, float), np.array(cals)
     if drift is not None:
         drift.append(float(np.max(np.ptp(ref_cals, axis=0) / np.mean(ref_cals, axis=0)) * 100.0))
     for recs in sample_frames(records, complete)[:max_frames]:
         rec = recs[0]
-        image = _linear(folder, rec, cb) if len(recs) == 1 and hdr_group(rec.note) is None \
-            else _merged(folder, rig, recs, cb)
+        plain = len(recs) == 1 and hdr_group(rec.note) is None
+        image = check.load(rec.frame, lambda recs=recs, rec=rec, plain=plain: (
+            _linear(folder, rec, cb) if plain else _merged(folder, rig, recs, cb)))
+        if image is None:
+            continue
         geo = _geometry(rig, rec, image.valid.shape)
         cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
         yield frame_samples(image, geo, cal, rec.step, min_cos)
+    check.raise_if_any()
 
 
 def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: MerlTable,

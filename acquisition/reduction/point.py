@@ -36,6 +36,7 @@ import numpy as np
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.kinematics import Pose
+from acquisition.reduction.badframes import FrameCheck
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
@@ -203,7 +204,8 @@ def reduce_session(
         return reduce_image_session(folder.path, progress, bundle=bundle)
     kin = rig.kinematics()
     records, complete = _done_records(folder)
-    frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis))
+    frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),
+                            FrameCheck(folder.path))
     refs = _reference_signals(frames, records)
     white = _WhiteScale.of(refs, rig)
     drift = _drift_pct(refs)
@@ -214,11 +216,12 @@ def reduce_session(
         fs = frames.sample(rec, brackets)
         cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
         pose = binning_pose(rec)
-        if fs.n_valid == 0 or cos_i <= 0:
+        if fs is None or fs.n_valid == 0 or cos_i <= 0:
             continue
         _add_sample(table, sums, pose, fs, white, frames.when[rec.step], cos_i)
         if progress:
             progress(k + 1, len(poses))
+    frames.check.raise_if_any()
     predicted = sums.predicted(table.shape) if sums is not None else None
     return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0, predicted,
                      None if cal is None else cal.path)
@@ -261,27 +264,33 @@ class _SessionFrames:
     cal: CalibrationBundle | None
     when: dict[int, float]
     """Reference-interpolation coordinate of each step (:func:`_reference_coordinates`)."""
+    check: FrameCheck
+    """Where frames that cannot be decoded are noted (None is returned for them)."""
 
-    def frame(self, rec: StepRecord) -> FrameSignal:
+    def frame(self, rec: StepRecord) -> FrameSignal | None:
         """The ROI signal of one plain frame."""
-        fs = frame_signal(self.folder.frames_dir / str(rec.frame), self.rig.camera.roi,
-                          rec.step, self.cal)
-        return dataclasses.replace(fs, at=self.when[rec.step])
+        fs = self.check.load(rec.frame, lambda: frame_signal(
+            self.folder.frames_dir / str(rec.frame), self.rig.camera.roi, rec.step, self.cal))
+        return None if fs is None else dataclasses.replace(fs, at=self.when[rec.step])
 
-    def sample(self, rec: StepRecord, brackets: dict[int, list[StepRecord]]) -> FrameSignal:
+    def sample(self, rec: StepRecord, brackets: dict[int, list[StepRecord]]
+               ) -> FrameSignal | None:
         """The ROI signal of a sample: a plain frame, or the merge of its HDR bracket."""
         g = hdr_group(rec.note)
         if g is None:
             return self.frame(rec)
-        return bracket_signal([self.folder.frames_dir / str(r.frame) for r in brackets[g]],
-                              self.rig, rec.step, self.cal)
+        return self.check.load(rec.frame, lambda: bracket_signal(
+            [self.folder.frames_dir / str(r.frame) for r in brackets[g]], self.rig, rec.step,
+            self.cal))
 
 
 def _reference_signals(frames: _SessionFrames, records: list[StepRecord]) -> list[FrameSignal]:
     """The white-reference frames' signals; SessionError if none, or one has no valid ROI."""
-    refs = [frames.frame(r) for r in records if r.kind == REFERENCE]
+    refs = [fs for fs in (frames.frame(r) for r in records if r.kind == REFERENCE)
+            if fs is not None]
     folder = frames.folder
     if not refs:
+        frames.check.raise_if_any()
         raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
     if any(r.n_valid == 0 for r in refs):
         raise SessionError(f"{folder.path}: a white-reference frame is saturated or dark in the ROI")

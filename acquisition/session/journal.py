@@ -232,3 +232,11 @@ class Journal:
 
     def events(self) -> list[tuple[float, str, int | None, str]]:
         return self._db.execute("SELECT at, level, step, message FROM events ORDER BY id").fetchall()
+
+    def integrity_problems(self) -> list[str]:
+        """What SQLite's own integrity check finds wrong with the journal (empty: sound)."""
+        try:
+            rows = [r[0] for r in self._db.execute("PRAGMA integrity_check")]
+        except sqlite3.DatabaseError as exc:
+            return [str(exc)]
+        return [] if rows == ["ok"] else rows

@@ -13,6 +13,7 @@ from acquisition.session.folder import SessionFolder
 from acquisition.session.steps import (
     REFERENCE,
 )
+from acquisition.session.verify import verify_session
 from calibration.signal import roi_signal
 
 if TYPE_CHECKING:
@@ -58,6 +59,8 @@ class SessionStatus:
     """Peak-to-peak change of the white reference's ROI signal, % of its mean."""
     link: dict[str, dict[str, int]] = field(default_factory=dict)
     """Per axis over all runs: requests, retries and goal resends on its servo bus."""
+    bad_frames: list[str] = field(default_factory=list)
+    """Done frames missing or failing their SHA-256 (counted as errors); empty unchecked."""
 
     @property
     def total(self) -> int:
@@ -79,6 +82,7 @@ class SessionStatus:
                        for at, lv, st, msg in self.events],
             "drift_pct": self.drift_pct,
             "link": self.link,
+            "bad_frames": self.bad_frames,
         }
 
     def lines(self, max_events: int = 10) -> list[str]:
@@ -110,7 +114,12 @@ class SessionStatus:
             out.append(f"{'bus' if i == 0 else '':10s}{axis}: {s['requests']} requests, "
                        f"{s['retries']} retries ({pct:.1f} %), {s['resends']} resends")
         shown = self.events[-max_events:]
-        out.append(f"errors    {len(self.events)} warning/error event(s)"
+        if self.bad_frames:
+            out.append(f"frames    {len(self.bad_frames)} bad (missing or failing their SHA-256: "
+                       f"{', '.join(self.bad_frames[:5])}): `gonio resume {self.folder.path}` "
+                       "retakes them")
+        out.append(f"errors    {len(self.events) + len(self.bad_frames)} error/warning(s): "
+                   f"{len(self.bad_frames)} bad frame(s), {len(self.events)} event(s)"
                    + (f", last {len(shown)}:" if shown else ""))
         for at, level, step, msg in shown:
             stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(at))
@@ -119,7 +128,8 @@ class SessionStatus:
         return out
 
 
-def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
+def session_status(path: str | Path, *, drift: bool = True, verify: bool = True
+                   ) -> SessionStatus:
     """Read a session folder (also while a capture writes it) into a :class:`SessionStatus`."""
     folder = SessionFolder(path)
     with folder.journal(readonly=True) as journal:
@@ -143,11 +153,16 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
              if r.device_time_s is not None]
     if times:
         device = times[0] + sum(b - a if b >= a else b for a, b in zip(times, times[1:], strict=False))
+    bad: list[str] = []
+    if verify:
+        report = verify_session(folder.path)
+        bad = report.missing + report.mismatched
     drift_pct = None
     refs = [r for r in done if r.kind == REFERENCE and r.frame]
     # Drift compares like with like: references taken with the first one's joints (a light
     # stage's per-LED white frames are lit by different lights).
     refs = [r for r in refs if r.joints_cmd == refs[0].joints_cmd] if refs else refs
+    refs = [r for r in refs if str(r.frame) not in bad]  # a damaged frame says nothing of drift
     if drift and len(refs) >= 2:
         roi = folder.rig().camera.roi
         sig = np.array([roi_signal(folder.frames_dir / str(r.frame), roi)[0] for r in refs])
@@ -156,5 +171,5 @@ def session_status(path: str | Path, *, drift: bool = True) -> SessionStatus:
         folder, counts, by_kind, busy, span, device,
         sum(1 for e in all_events if e[3].startswith("run started")),
         sum(1 for r in records if r.attempts > 1),
-        [e for e in all_events if e[1] in ("warning", "error")], drift_pct, link,
+        [e for e in all_events if e[1] in ("warning", "error")], drift_pct, link, bad,
     )

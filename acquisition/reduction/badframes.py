@@ -1,0 +1,52 @@
+"""Frames a reduction cannot read: collected, so that one error lists every bad frame.
+
+A reduction goes on past a frame whose RAW file cannot be decoded (truncated, corrupted on a
+copy) and, once every frame has been tried, stops with one line naming them all and the fix:
+`gonio resume` sees their SHA-256 no longer match the journal and retakes them. No table is
+written from a session with a bad frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TypeVar
+
+from drivers.errors import RawFormatError, SessionError
+
+T = TypeVar("T")
+SHOWN = 5
+"""Bad frames named in the one-line error (the count says how many there are)."""
+
+
+class BadFramesError(SessionError):
+    """Frames of a session cannot be read; the message names them and the fix."""
+
+
+@dataclass
+class FrameCheck:
+    """Collects the frames of one reduction that fail to load."""
+
+    session: Path
+    bad: list[str] = field(default_factory=list)
+
+    def load(self, frame: str | None, read: Callable[[], T]) -> T | None:
+        """``read()``, or None (and the frame noted) when its RAW file cannot be decoded."""
+        try:
+            return read()
+        except RawFormatError:
+            self.bad.append(str(frame))
+            return None
+
+    def raise_if_any(self) -> None:
+        """:class:`BadFramesError` naming every bad frame, if there is one."""
+        if not self.bad:
+            return
+        names = ", ".join(self.bad[:SHOWN]) + (f" and {len(self.bad) - SHOWN} more"
+                                                 if len(self.bad) > SHOWN else "")
+        raise BadFramesError(
+            f"{self.session}: {len(self.bad)} frame(s) cannot be read (corrupt or truncated: "
+            f"{names}); `gonio verify {self.session}` checks them all, `gonio resume "
+            f"{self.session}` retakes them"
+        )

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EXAMPLES, TINY_PLAN_ARGS, grid_plan_text
 
 from acquisition import api
 from acquisition.cli import main
-from conftest import EXAMPLES, TINY_PLAN_ARGS, grid_plan_text
 
 
 @pytest.fixture

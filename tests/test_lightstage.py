@@ -26,8 +26,9 @@ from acquisition.session.engine import StepEvent
 from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
+from acquisition.session.status import session_status
 from acquisition.tables import IsotropicTable
-from drivers.errors import CommunicationError, ConfigError, HardwareError
+from drivers.errors import CommunicationError, ConfigError, HardwareError, SafetyStop
 from drivers.lights import DutyCycleLimit, DutyPolicy
 from simulators.materials import directions_from_angles, material_from_spec
 
@@ -249,3 +250,37 @@ def test_resume_refuses_a_session_that_is_not_a_light_stage_one(tmp_path: Path) 
                    ROOT / "examples" / "plan-quick.toml", material=GGX)
     with pytest.raises(Exception, match="not a light-stage session"):
         resume_lightstage(tmp_path / "g")
+
+
+class _CtrlCAfter(Observer):
+    def __init__(self, after: int) -> None:
+        self.after = after
+
+    def step(self, event: StepEvent) -> None:
+        if event.done == self.after:
+            raise KeyboardInterrupt
+
+
+def test_a_stopped_olat_reports_its_lights_its_progress_and_gonio_resume_ends_with_the_field(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "s"
+    with pytest.raises(SafetyStop) as err:
+        capture_lightstage(RIG, out, material=GGX, seed=4, observers=[_CtrlCAfter(83)])
+    message = str(err.value)
+    assert "every light switched off" in message and "axes" not in message
+    status = session_status(out, drift=False, verify=False)
+    steps = sum(1 for s in capture_steps(stage_config(load_rig(RIG)), ["olat"])
+                if type(s).__name__ == "LightFrame")
+    assert (status.done, status.total) == (83, steps) and steps > 300
+    assert f"83/{steps} steps done" in "\n".join(status.lines())
+    assert main(["resume", str(out)]) == 0  # the generic resume, as for a servo rig
+    text = capsys.readouterr().out
+    assert f"{steps} steps done" in text and "reflectance field: 156 EXRs" in text
+    assert len(list((out / "field").glob("light-*.exr"))) == 156
+
+
+def test_the_ctrl_c_notice_speaks_of_lights_on_a_light_stage() -> None:
+    from acquisition import api
+
+    assert "light" in api.LIGHTS_MESSAGE and "axes" not in api.LIGHTS_MESSAGE
+    assert "axes" in api.FIRST_MESSAGE

@@ -31,7 +31,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.session.observers": (
         "Observer", "LogObserver", "ProgressObserver", "CallbackObserver",
     ),
-    "acquisition.session.interrupts": ("sigint_stops_motion",),
+    "acquisition.session.interrupts": ("sigint_stops_motion", "FIRST_MESSAGE", "LIGHTS_MESSAGE"),
     "acquisition.devices.rig": ("OperatorPrompt",),
     "acquisition.devices.console": (
         "Console", "AxisStatus", "ScanResult", "ALL_IDS", "open_console", "scan_port",
@@ -44,8 +44,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.tables": ("IsotropicTable", "MerlTable"),
     "acquisition.formats.merl": ("read_merl", "write_merl"),
     "acquisition.formats.export": ("ExportFormat", "export_table", "load_table", "table_info"),
+    "acquisition.lightstage.reduce": ("is_lightstage_session",),
     "acquisition.lightstage.capture": (
-        "LightStageResult", "capture_lightstage", "resume_lightstage", "plan_lightstage",
+        "FIELD_DIR", "LightStageResult", "capture_lightstage", "resume_lightstage", "plan_lightstage",
         "session_sequences",
     ),
     "acquisition.lightstage.field": ("write_field",),
@@ -114,6 +115,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.formats.merl import read_merl, write_merl
     from acquisition.geometry.kinematics import Pose
     from acquisition.lightstage.capture import (
+        FIELD_DIR,
         LightStageResult,
         capture_lightstage,
         plan_lightstage,
@@ -121,13 +123,14 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         session_sequences,
     )
     from acquisition.lightstage.field import write_field
+    from acquisition.lightstage.reduce import is_lightstage_session
     from acquisition.lightstage.relight import relight_files
     from acquisition.lightstage.sequences import SEQUENCES, TimeEstimate
     from acquisition.planning.planner import Planner, Reason, Rejection, Sweep
     from acquisition.reduction.live import LiveReduction
     from acquisition.reduction.point import Reduction, reduce_session
     from acquisition.session.folder import SessionFolder
-    from acquisition.session.interrupts import sigint_stops_motion
+    from acquisition.session.interrupts import FIRST_MESSAGE, LIGHTS_MESSAGE, sigint_stops_motion
     from acquisition.session.journal import StepRecord
     from acquisition.session.observers import (
         CallbackObserver,

@@ -61,9 +61,14 @@ def remaining_line(predicted: dict[int, float]) -> str:
 def _report(args: argparse.Namespace, result: api.CaptureResult) -> int:
     counts = result.counts
     device = f" in {result.device_seconds:.1f} s of rig time" if result.device_seconds else ""
-    report(args, {"session": result.session.path, "counts": counts,
-                  "device_seconds": result.device_seconds},
-           [f"session {result.session.path}: {counts.get('done', 0)} steps done{device}"])
+    payload = {"session": result.session.path, "counts": counts,
+               "device_seconds": result.device_seconds}
+    lines = [f"session {result.session.path}: {counts.get('done', 0)} steps done{device}"]
+    field = getattr(result, "field", None)  # a light-stage session's reflectance field
+    if field is not None:
+        payload["field"] = {"folder": result.session.path / api.FIELD_DIR, "images": len(field)}
+        lines.append(f"reflectance field: {len(field)} EXRs in {result.session.path / api.FIELD_DIR}")
+    report(args, payload, lines)
     return 0
 
 
@@ -97,7 +102,10 @@ def run_capture(args: argparse.Namespace) -> int:
 
 
 def run_resume(args: argparse.Namespace) -> int:
-    with operator_output(), api.sigint_stops_motion(), step_bar("resume") as bar:
+    lights = api.is_lightstage_session(args.session)
+    notice = api.LIGHTS_MESSAGE if lights else api.FIRST_MESSAGE
+    with operator_output(), api.sigint_stops_motion(first_message=notice), \
+            step_bar("resume") as bar:
         result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar,
                             on_open=eta_from_time_model(bar, args, resumed=True),
                             prompt=terminal_prompt())

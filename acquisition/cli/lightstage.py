@@ -10,9 +10,6 @@ from acquisition.cli.operator import operator_output, terminal_prompt
 from acquisition.cli.options import add_json, add_out, add_seed, report
 from acquisition.cli.progress import say, step_bar
 
-FIELD_DIR = "field"
-"""Sub-folder of a session where the reflectance field is written."""
-
 
 def _sequences(text: str) -> list[str]:
     names = [s.strip() for s in text.split(",") if s.strip()]
@@ -55,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = cmds.add_parser("field", help="write a session's calibrated reflectance field (EXRs)")
     p.add_argument("session", help="session folder")
-    add_out(p, f"folder for the EXRs (default: SESSION/{FIELD_DIR})", aliases=("--output",))
+    add_out(p, f"folder for the EXRs (default: SESSION/{api.FIELD_DIR})", aliases=("--output",))
     add_json(p)
     p.set_defaults(func=run_field)
 
@@ -82,10 +79,10 @@ def _finish(args: argparse.Namespace, result: api.LightStageResult,
                                   "device_seconds": result.device_seconds}
     if estimate is not None:
         payload["estimate"] = estimate
-    if done == sum(result.counts.values()) and "olat" in api.session_sequences(result.session.path):
-        paths = api.write_field(result.session.path, result.session.path / FIELD_DIR)
-        lines.append(f"reflectance field: {len(paths)} EXRs in {result.session.path / FIELD_DIR}")
-        payload["field"] = {"folder": result.session.path / FIELD_DIR, "images": len(paths)}
+    if result.field is not None:
+        folder = result.session.path / api.api.FIELD_DIR
+        lines.append(f"reflectance field: {len(result.field)} EXRs in {folder}")
+        payload["field"] = {"folder": folder, "images": len(result.field)}
     report(args, payload, lines)
     return 0
 
@@ -94,7 +91,8 @@ def run_capture(args: argparse.Namespace) -> int:
     estimate = api.plan_lightstage(args.rig, args.sequence)
     if not args.json:
         say(_estimate_line(estimate))
-    with operator_output(), api.sigint_stops_motion(), step_bar("capture") as bar:
+    with operator_output(), api.sigint_stops_motion(first_message=api.LIGHTS_MESSAGE), \
+            step_bar("capture") as bar:
         result = api.capture_lightstage(args.rig, args.out, sequences=args.sequence,
                                         material=args.material, seed=args.seed,
                                         plan_path=args.plan, calibration=args.calibration,
@@ -103,13 +101,14 @@ def run_capture(args: argparse.Namespace) -> int:
 
 
 def run_resume(args: argparse.Namespace) -> int:
-    with operator_output(), api.sigint_stops_motion(), step_bar("resume") as bar:
+    with operator_output(), api.sigint_stops_motion(first_message=api.LIGHTS_MESSAGE), \
+            step_bar("resume") as bar:
         result = api.resume_lightstage(args.session, progress=bar, prompt=terminal_prompt())
     return _finish(args, result)
 
 
 def run_field(args: argparse.Namespace) -> int:
-    out = Path(args.out or Path(args.session) / FIELD_DIR)
+    out = Path(args.out or Path(args.session) / api.FIELD_DIR)
     paths = api.write_field(args.session, out)
     report(args, {"folder": out, "images": len(paths)}, [f"{out}: {len(paths)} EXRs (one per light)"])
     return 0

@@ -67,6 +67,9 @@ class RigDevices:
     where no simulated sample holder does it.
     """
 
+    stopped = "all axes stopped, torque on"
+    """What :meth:`stop_motion` leaves (the engine's Ctrl-C message says so)."""
+
     def __init__(
         self,
         rig: RigConfig,

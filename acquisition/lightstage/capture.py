@@ -27,6 +27,7 @@ from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import INFO_FILE, SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
+from acquisition.session.status import PLANNED_STEPS_META
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
 
@@ -84,6 +85,9 @@ class LightStageResult:
     """Rig time the run took on the devices' clock (s)."""
     estimate: TimeEstimate
     """Predicted rig time of the whole sequence."""
+    field: list[Path] | None = None
+    """The reflectance field's EXRs (``SESSION/field``), written once an OLAT sequence is
+    complete; None otherwise."""
 
 
 def plan_lightstage(rig_path: str | Path, sequences: Sequence[str] = ("olat",), *,
@@ -168,14 +172,26 @@ def resume_lightstage(
     if progress is not None:
         obs.append(ProgressObserver(progress))
     planner = Planner.for_plan(rig, folder.plan())
+    total = _frames(steps)
+    with folder.journal() as journal:
+        journal.set_meta(PLANNED_STEPS_META, total)
     with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage,
                          prompt=prompt) as devices:
         engine = LightStageEngine(folder, devices, planner, obs)
         t0 = devices.device_time_s()
-        counts = engine.run(steps, _frames(steps))
+        counts = engine.run(steps, total)
         t1 = devices.device_time_s()
+    field = None
+    if counts.get("done", 0) == sum(counts.values()) and "olat" in meta["sequences"]:
+        from acquisition.lightstage.field import write_field  # the field reads capture's meta
+
+        field = write_field(folder.path, folder.path / FIELD_DIR)
     return LightStageResult(folder, counts, None if t0 is None or t1 is None else t1 - t0,
-                            estimate)
+                            estimate, field)
+
+
+FIELD_DIR = "field"
+"""Sub-folder of a session where the reflectance field is written."""
 
 
 def session_sequences(session_dir: str | Path) -> list[str]:

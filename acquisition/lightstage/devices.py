@@ -74,6 +74,9 @@ class LightStageDevices:
         The lights' clock, used to time a real camera's exposure (host monotonic).
     """
 
+    stopped = "every light switched off"
+    """What :meth:`stop_motion` leaves (the engine's Ctrl-C message says so)."""
+
     def __init__(self, rig: RigConfig, stage: StageConfig, lights: LightController,
                  camera: Camera, holder: SampleHolder | None, clock: SimClock | None,
                  sims: Mapping[int, SimDmxWidget], images: LightImages | None = None, *,

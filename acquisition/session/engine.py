@@ -55,6 +55,9 @@ if TYPE_CHECKING:
 class CaptureDevices(Protocol):
     """What the engine needs from an open rig (real or simulated)."""
 
+    stopped: str
+    """What :meth:`stop_motion` leaves, for the Ctrl-C message ("all axes stopped, ...")."""
+
     def move_to(self, joints: dict[str, float]) -> dict[str, float]:
         """Checked move; returns the read-back joints (degrees)."""
 
@@ -251,7 +254,8 @@ class SessionEngine:
             self.devices.stop_motion()
             journal.try_log("warning", "interrupted by the operator", self._current)
             exc = SafetyStop(
-                f"interrupted at step {self._current}: all axes stopped, torque on; "
+                f"interrupted at step {self._current}: "
+                f"{self.devices.stopped}; "
                 f"continue with `gonio resume {self.folder.path}`"
             )
             self._notify_error(exc)

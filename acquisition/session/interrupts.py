@@ -31,6 +31,9 @@ EXIT_INTERRUPTED = 130
 
 FIRST_MESSAGE = ("gonio: Ctrl-C: stopping all axes (torque stays on); "
                  "press Ctrl-C again to exit at once\n")
+LIGHTS_MESSAGE = ("gonio: Ctrl-C: switching every light off; "
+                  "press Ctrl-C again to exit at once\n")
+"""The first notice on a light stage, which has lights to switch off and nothing to stop."""
 SECOND_MESSAGE = "gonio: second Ctrl-C: exiting now; check the rig before moving it again\n"
 
 
@@ -55,6 +58,7 @@ def sigint_stops_motion(
     *,
     exit_now: Callable[[int], object] = os._exit,
     write: Callable[[str], None] = _write_stderr,
+    first_message: str = FIRST_MESSAGE,
 ) -> Iterator[SigintState]:
     """Context in which the first SIGINT raises ``KeyboardInterrupt`` and the second exits.
 
@@ -65,6 +69,8 @@ def sigint_stops_motion(
         no waiting for threads).
     write:
         Where the one-line notices go (stderr, unbuffered).
+    first_message:
+        The first press's notice (:data:`LIGHTS_MESSAGE` on a light stage).
 
     Yields
     ------
@@ -79,7 +85,7 @@ def sigint_stops_motion(
     def handler(signum: int, frame: FrameType | None) -> None:
         state.presses += 1
         if state.presses == 1:
-            write(FIRST_MESSAGE)
+            write(first_message)
             raise KeyboardInterrupt
         write(SECOND_MESSAGE)
         exit_now(EXIT_INTERRUPTED)

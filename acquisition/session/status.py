@@ -21,6 +21,9 @@ if TYPE_CHECKING:
 
 
 # ---------------------------------------------------------------------------- gonio info
+PLANNED_STEPS_META = "planned_steps"
+"""Journal meta of a session whose steps are journaled as they are reached (a light stage):
+how many journal steps its whole sequence has."""
 LINK_STATS_META = "link_stats"
 """Journal meta: per run, ``{axis: {"requests", "retries", "resends"}}`` of its servo bus."""
 
@@ -137,6 +140,9 @@ def session_status(path: str | Path, *, drift: bool = True, verify: bool = True
         counts = journal.counts()
         all_events = journal.events()
         link = summed_link_stats(journal.meta(LINK_STATS_META, []))
+        planned = int(journal.meta(PLANNED_STEPS_META, 0) or 0)
+    if planned > len(records):  # steps of the sequence not reached yet
+        counts = {**counts, "planned": counts.get("planned", 0) + planned - len(records)}
     by_kind: dict[str, tuple[int, int]] = {}
     for r in records:
         d, t = by_kind.get(r.kind, (0, 0))

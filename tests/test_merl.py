@@ -316,3 +316,18 @@ def test_merl_material_spec_errors(tmp_path):
     junk.write_bytes(b"\0" * 100)
     with pytest.raises(MaterialError, match="header"):
         material_from_spec(f"merl:{junk}")
+
+
+def test_comparisons_leave_out_bins_where_the_truth_is_unmeasured() -> None:
+    from acquisition.simworld.truth import relative_errors
+    from acquisition.tables import IsotropicTable
+
+    edges = np.array([0.0, 30.0, 60.0])
+    measured = IsotropicTable(edges, edges, np.array([0.0, 90.0, 180.0]))
+    truth = IsotropicTable(edges, edges, np.array([0.0, 90.0, 180.0]))
+    for ti, value, true in ((10.0, 0.11, 0.10), (40.0, 0.02, 0.0)):  # 0: the file has no data
+        measured.add(np.array([ti]), np.array([10.0]), np.array([45.0]), np.full((1, 3), value))
+        truth.add(np.array([ti]), np.array([10.0]), np.array([45.0]), np.full((1, 3), true))
+    errors = relative_errors(measured, truth)
+    assert errors.shape == (1,) and errors[0] == pytest.approx(0.1)
+    assert np.isfinite(np.median(errors))

@@ -42,7 +42,13 @@ def truth_table(session_dir: str | Path, material: Material | None = None) -> Is
 
 
 def relative_errors(measured: IsotropicTable, truth: IsotropicTable) -> np.ndarray:
-    """|measured − truth| / truth per measured bin, averaged over the RGB channels."""
-    mask = (measured.count > 0) & (truth.count > 0)
+    """|measured − truth| / truth per bin both hold, averaged over the RGB channels.
+
+    Bins where the truth is unknown are left out: a measured material's unmeasured bins
+    (a MERL file's negative values, which the simulated material evaluates as 0) have no
+    relative error to speak of.
+    """
+    known = np.all(np.isfinite(truth.mean) & (truth.mean > 0), axis=-1)
+    mask = (measured.count > 0) & (truth.count > 0) & known
     m, t = measured.mean[mask], truth.mean[mask]
     return np.mean(np.abs(m - t) / t, axis=-1)

@@ -300,10 +300,7 @@ class SimServoBus:
     def sim_collisions(self) -> list[Collision]:
         """Every contact of the arms so far (oldest first); empty on a bare bus."""
         with self._lock:
-            if self.world is None:
-                return []
-            self.world.advance(self.clock.now())
-            return list(self.world.collisions)
+            return [] if self.world is None else self.world.collisions_at(self.clock.now())
 
     def sim_drop_next(self, servo_id: int, instructions: Collection[str] | None = ("SYNC_WRITE",),
                       count: int = 1, *, corrupt: bool = False) -> None:

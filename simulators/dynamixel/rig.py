@@ -207,10 +207,7 @@ class SimRig:
     def sim_collisions(self) -> list[Collision]:
         """Every contact of the arms so far (oldest first); empty without solids."""
         with self._lock:
-            if self.world is None:
-                return []
-            self.world.advance(self.clock.now())
-            return list(self.world.collisions)
+            return [] if self.world is None else self.world.collisions_at(self.clock.now())
 
 
 def serve_rig(rig: RigSource, **options: Any) -> SimRig:

@@ -162,6 +162,11 @@ class SolidWorld:
                    for j, s in self._servos.items())
 
     # ------------------------------------------------------------------ stepping
+    def collisions_at(self, now: float) -> list[Collision]:
+        """Every contact of the arms up to device time ``now`` (oldest first)."""
+        self.advance(now)
+        return list(self.collisions)
+
     def advance(self, now: float) -> None:
         """Step every arm servo to simulated time ``now`` (s), handling contacts on the way.
 

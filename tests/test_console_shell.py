@@ -437,3 +437,16 @@ def test_a_home_table_on_the_light_stage_is_refused(tmp_path: Path) -> None:
                          "[light_stage]"))
     with pytest.raises(ConfigError, match=r"\[home\]: the light stage has no moving axes"):
         load_rig(path)
+
+
+def test_the_issues_move_through_the_camera_is_routed(
+        capsys: pytest.CaptureFixture[str], sims: list[SimServoBus]) -> None:
+    # `gonio move --theta-i 20 --theta-r 0 --delta-phi 0` from park swung the light through
+    # the camera: now the camera steps aside first and the move reads back its target.
+    assert main(["move", "--theta-i", "20", "--theta-r", "0", "--delta-phi", "0", "--rig",
+                 str(RIG), "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert len(payload["route"]) >= 2  # not the direct move
+    assert payload["joints_deg"]["light_theta"] == pytest.approx(20.0, abs=TICK_DEG)
+    assert payload["joints_deg"]["camera_theta"] == pytest.approx(0.0, abs=TICK_DEG)
+    assert all(bus.sim_collisions() == [] for bus in sims)

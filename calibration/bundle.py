@@ -9,8 +9,9 @@ Layout::
     bad-pixels.exr            1 where a pixel must not be used
 
 Images are single-channel float32 OpenEXR files written through OpenImageIO (float32 holds
-every 16-bit DN exactly); each EXR also carries its own ``gonio:*`` attributes. Files are
-written under a temporary name and renamed, so a bundle never holds half an image.
+every 16-bit DN exactly); each EXR also carries its own ``gonio:*`` attributes. Every file goes
+through :func:`drivers.storage.atomic_output` (verified, then renamed), so a bundle never holds
+half an image.
 
 Use :meth:`CalibrationBundle.open` (existing folder) or :meth:`CalibrationBundle.create`.
 """
@@ -28,9 +29,11 @@ from typing import Any
 
 import numpy as np
 
+from calibration import exr
 from calibration.linearize import LinearImage, NoiseModel, linearize
 from calibration.raw import RawFrame
-from drivers.errors import CalibrationError, StorageError
+from drivers.errors import CalibrationError, ConfigError
+from drivers.storage import check_folder, ensure_folder, write_text
 
 BUNDLE_FORMAT = "gonio-calibration-bundle"
 BUNDLE_VERSION = 1
@@ -53,57 +56,41 @@ def provenance(**extra: Any) -> dict[str, Any]:
     }
 
 
-def write_exr(path: Path, image: np.ndarray, attributes: Mapping[str, Any] | None = None) -> None:
-    """Write a 2-D (or H×W×C) array as float32 OpenEXR with ``gonio:*`` attributes, atomically."""
-    import OpenImageIO as oiio
+IMAGE_KIND = "gonio:kind"
+"""Attribute every bundle image carries (dark, flat, bad_pixels): how a bundle tells its own
+images from other files it must not overwrite."""
 
-    arr = np.ascontiguousarray(image, dtype=np.float32)
-    if arr.ndim == 2:
-        arr = arr[:, :, None]
-    h, w, c = arr.shape
-    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
-    spec.attribute("compression", "zip")
-    for key, value in (attributes or {}).items():
-        if isinstance(value, bool | int):
-            spec.attribute(f"gonio:{key}", int(value))
-        elif isinstance(value, float):
-            spec.attribute(f"gonio:{key}", float(value))
-        else:
-            spec.attribute(f"gonio:{key}", str(value))
-    tmp = path.with_name(path.name + ".tmp.exr")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), spec):
-        raise StorageError(f"cannot write {path} ({oiio.geterror()}); check the folder is writable")
-    ok = out.write_image(arr)
-    out.close()
-    if not ok:
-        raise StorageError(f"cannot write {path} ({oiio.geterror()}); check the disk is not full")
-    os.replace(tmp, path)
+
+def _is_bundle_json(path: Path) -> bool:
+    try:
+        return json.loads(path.read_text()).get("format") == BUNDLE_FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _is_bundle_json_or_raise(path: Path) -> None:
+    if not _is_bundle_json(path):
+        raise ValueError(f"{path} does not parse as a {BUNDLE_FORMAT} file")
+
+
+def write_exr(path: Path, image: np.ndarray, attributes: Mapping[str, Any] | None = None) -> None:
+    """Write a 2-D (or H×W×C) array as float32 OpenEXR with ``gonio:*`` attributes, atomically
+    (a previous bundle image may be replaced, any other file is refused)."""
+    attrs = {f"gonio:{k}": (int(v) if isinstance(v, bool) else v)
+             for k, v in (attributes or {}).items()}
+    exr.write_exr(path, image, attrs, what="calibration image", compression="zip",
+                  ours=exr.exr_has(IMAGE_KIND))
 
 
 def read_exr(path: Path) -> tuple[np.ndarray, dict[str, Any]]:
     """Read an EXR: (H×W float32 for one channel, else H×W×C) and its ``gonio:*`` attributes."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise CalibrationError(
-            f"cannot read calibration image {path} ({oiio.geterror()}); re-run gonio calibrate"
-        )
     try:
-        spec = inp.spec()
-        data = inp.read_image(oiio.FLOAT)
-        attrs = {
-            p.name.split(":", 1)[1]: p.value
-            for p in spec.extra_attribs
-            if p.name.startswith("gonio:")
-        }
-    finally:
-        inp.close()
-    if data is None:
-        raise CalibrationError(f"cannot decode calibration image {path}; re-run gonio calibrate")
-    arr = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    return (arr[:, :, 0] if spec.nchannels == 1 else arr), attrs
+        arr, attrs = exr.read_exr(path)
+    except ConfigError:
+        raise CalibrationError(f"cannot read calibration image {path} (unreadable or truncated); "
+                               "re-run gonio calibrate") from None
+    ours = {k.split(":", 1)[1]: v for k, v in attrs.items() if k.startswith("gonio:")}
+    return (arr[:, :, 0] if arr.shape[2] == 1 else arr), ours
 
 
 class CalibrationBundle:
@@ -120,13 +107,10 @@ class CalibrationBundle:
         cls, path: str | os.PathLike[str], camera: Mapping[str, Any] | None = None
     ) -> CalibrationBundle:
         """Open ``path`` if it is a bundle, else make a new empty one there."""
-        path = Path(path)
+        path = check_folder(path, what="calibration bundle")  # not a session's own copy
         if (path / SCALARS_FILE).exists():
             return cls.open(path)
-        try:
-            path.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise StorageError(f"cannot create bundle folder {path} ({exc.strerror})") from exc
+        ensure_folder(path, what="calibration bundle")
         bundle = cls(path, {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION,
                             "camera": dict(camera or {}), "darks": {}, "noise": {}})
         bundle._save()
@@ -154,10 +138,9 @@ class CalibrationBundle:
 
     def _save(self) -> None:
         self._cache.clear()
-        file = self.path / SCALARS_FILE
-        tmp = file.with_name(file.name + ".tmp")
-        tmp.write_text(json.dumps(self._scalars, indent=2, sort_keys=True) + "\n")
-        os.replace(tmp, file)
+        write_text(self.path / SCALARS_FILE, json.dumps(self._scalars, indent=2, sort_keys=True)
+                   + "\n", what="calibration bundle file", ours=_is_bundle_json,
+                   verify=_is_bundle_json_or_raise)
 
     @property
     def scalars(self) -> dict[str, Any]:

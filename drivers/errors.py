@@ -62,4 +62,10 @@ class MaterialError(GonioError, ValueError):
 
 
 class StorageError(GonioError, OSError):
-    """Writing to disk failed (full disk, permissions); the session is left resumable."""
+    """Writing to disk failed (disk full, read-only, permissions, not a folder); nothing
+    half-written is left under a final name and a session is left resumable."""
+
+
+class OutputRefused(GonioError, ValueError):
+    """An output path would overwrite an input, a session's own files, or a file that gonio did
+    not write as that kind of output (nothing was written)."""

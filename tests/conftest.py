@@ -117,3 +117,67 @@ def no_unexpected_collision(request: pytest.FixtureRequest, monkeypatch: pytest.
     if seen:
         pytest.fail("the simulated arms collided: " + "; ".join(map(str, seen.values())),
                     pytrace=False)
+
+
+# ---------------------------------------------------------------------------- outputs
+TINY_MATERIAL = "lambert:albedo=0.4"
+LIGHTSTAGE_RIG = EXAMPLES / "rig-lightstage-sim.toml"
+
+
+@pytest.fixture(scope="session")
+def finished(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A finished four-pose session ``session`` (made under umask 022), its plan file ``plan``
+    and its table ``table`` (outside the session)."""
+    from acquisition import api
+
+    root = tmp_path_factory.mktemp("finished")
+    plan = root / "plan.toml"
+    plan.write_text(grid_plan_text(*TINY_PLAN_ARGS, name="tiny"))
+    old = os.umask(0o022)
+    try:
+        api.capture(EXAMPLES / "rig-sim.toml", plan, root / "s", material=TINY_MATERIAL, seed=3)
+        api.reduce(root / "s", root / "t.h5")
+    finally:
+        os.umask(old)
+    return {"session": root / "s", "plan": plan, "table": root / "t.h5", "root": root}
+
+
+@pytest.fixture(scope="session")
+def lightstage_field(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A light-stage OLAT session ``session`` with its reflectance field ``field`` and a small
+    environment map ``env`` (made under umask 022)."""
+    import numpy as np
+
+    from acquisition import api
+    from acquisition.formats.envmap import write_exr
+
+    root = tmp_path_factory.mktemp("lightstage-field")
+    old = os.umask(0o022)
+    try:
+        api.capture_lightstage(LIGHTSTAGE_RIG, root / "l", material="ggx:albedo=0.2,alpha=0.3,f0=0.04",
+                               seed=2)
+        api.write_field(root / "l", root / "l" / "field")
+        write_exr(root / "env.exr", np.ones((8, 16, 3), dtype=np.float32))
+    finally:
+        os.umask(old)
+    return {"session": root / "l", "field": root / "l" / "field", "env": root / "env.exr",
+            "root": root}
+
+
+def unfinish(session: Path, steps: int = 2) -> list[int]:
+    """Send the last ``steps`` done frame steps of ``session`` back to planned, as an
+    interrupted run leaves them (their frames deleted); returns their numbers."""
+    import sqlite3
+
+    db = sqlite3.connect(session / "journal.sqlite")
+    try:
+        rows = db.execute("SELECT step, frame FROM steps WHERE status = 'done' AND frame IS NOT "
+                          "NULL ORDER BY step DESC LIMIT ?", (steps,)).fetchall()
+        for step, frame in rows:
+            db.execute("UPDATE steps SET status = 'planned', frame = NULL, sha256 = NULL "
+                       "WHERE step = ?", (step,))
+            (session / "frames" / frame).unlink()
+        db.commit()
+    finally:
+        db.close()
+    return [r[0] for r in rows]

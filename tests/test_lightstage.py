@@ -30,6 +30,7 @@ from acquisition.session.status import session_status
 from acquisition.tables import IsotropicTable
 from drivers.errors import CommunicationError, ConfigError, HardwareError, SafetyStop
 from drivers.lights import DutyCycleLimit, DutyPolicy
+from drivers.storage import is_partial
 from simulators.materials import directions_from_angles, material_from_spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -212,7 +213,7 @@ def test_unplugged_widget_stops_cleanly_and_the_session_resumes(
         events = journal.events()
     assert sum(r.status == "done" for r in records) == 40
     assert not any(r.status == "done" for r in records[40:])
-    assert not list(folder.frames_dir.glob("*.partial"))
+    assert not [p for p in folder.frames_dir.iterdir() if is_partial(p)]
     assert any(e[1] == "error" and "stopped responding" in e[3] for e in events)
     first_frames = {r.frame: (folder.frames_dir / str(r.frame)).read_bytes()
                     for r in records if r.status == "done"}

@@ -28,6 +28,7 @@ from acquisition.session.observers import Observer
 from drivers.camera import CaptureInfo
 from drivers.errors import CommunicationError, ConfigError, HardwareError
 from drivers.gphoto2 import parse_shutter
+from drivers.storage import is_partial
 from simulators.dmx import SimDmxWidget
 from simulators.dng import write_dng
 
@@ -157,7 +158,7 @@ def test_real_path_captures_confirmed_frames_and_resumes_after_an_unplug(rig_fil
         records = list(journal.steps())
     assert sum(r.status == "done" for r in records) == 20
     assert not any(r.status == "done" for r in records[20:])
-    assert not list(folder.frames_dir.glob("*.partial"))
+    assert not [p for p in folder.frames_dir.iterdir() if is_partial(p)]
     kept = {r.frame: (folder.frames_dir / str(r.frame)).read_bytes()
             for r in records if r.status == "done"}
 

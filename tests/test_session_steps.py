@@ -28,6 +28,7 @@ from acquisition.session.steps import (
     sweep_steps,
 )
 from drivers.errors import SafetyStop, SessionError
+from drivers.storage import is_partial, partial_name
 
 PLAN = """
 format_version = 1
@@ -146,12 +147,12 @@ def test_replay_retakes_only_missing_frame_and_moves_only_there(
     engine.run(plan)
     first = (engine.folder.frames_dir / "step-000002.dng").read_bytes()
     (engine.folder.frames_dir / "step-000002.dng").write_bytes(b"bit rot")
-    (engine.folder.frames_dir / "step-000003.dng.partial").write_bytes(b"half")
+    partial_name(engine.folder.frames_dir / "step-000003.dng").write_bytes(b"half")
     rig.calls.clear()
     engine.run(plan)
     assert rig.kinds() == ["present", "move", "capture"]  # only the damaged step's pose
     assert (engine.folder.frames_dir / "step-000002.dng").read_bytes() == first
-    assert not list(engine.folder.frames_dir.glob("*.partial"))
+    assert not [p for p in engine.folder.frames_dir.iterdir() if is_partial(p)]
     with Journal(engine.folder.path / JOURNAL_FILE) as j:
         assert any("fails its SHA-256" in e[3] for e in j.events())
 

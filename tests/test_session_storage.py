@@ -58,7 +58,8 @@ def test_disk_full_stops_cleanly_and_resumes(
     err = capsys.readouterr().err
     assert code == StorageError("x").exit_code != 0
     message = err.strip().splitlines()[-1]
-    assert message.startswith("gonio: error: disk full writing frame step-000003.dng")
+    assert message.startswith(
+        f"gonio: error: cannot write frame {out / 'frames' / 'step-000003.dng'}: disk full")
     assert f"gonio resume {out}" in message and "Traceback" not in err
     assert sorted(p.name for p in (out / "frames").iterdir()) == [
         f"step-{i:06d}.dng" for i in range(3)

@@ -269,7 +269,7 @@ def test_load_missing_or_non_hdf5_is_config_error(tmp_path):
 
 
 def test_save_into_missing_folder_is_storage_error(tmp_path):
-    with pytest.raises(StorageError, match="cannot write table"):
+    with pytest.raises(StorageError, match="cannot write BRDF table .*: folder missing"):
         _filled_table().save_h5(tmp_path / "no" / "such" / "t.h5")
 
 

@@ -1,6 +1,9 @@
 """Plots of plans and BRDF tables (matplotlib with the Agg backend: no display needed).
 
-matplotlib is imported on first use, so importing this module is cheap.
+matplotlib is imported on first use, so importing this module is cheap. Plots are PNG, PDF
+or SVG files written through :func:`drivers.storage.atomic_output`; each carries the marker
+:data:`PLOT_MARK` in its metadata, so a later plot may replace it and nothing else is
+overwritten.
 """
 
 from __future__ import annotations
@@ -13,6 +16,51 @@ import numpy as np
 from acquisition.geometry.halfdiff import halfdiff_from_angles
 from acquisition.planning.planner import Reason, Sweep
 from acquisition.tables import IsotropicTable
+from drivers.errors import ConfigError
+from drivers.storage import atomic_output, ensure_folder
+
+PLOT_MARK = "gonio:plot"
+"""Written into every plot's metadata (PNG Software, PDF/SVG Creator)."""
+PLOT_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
+WHAT = "plot"
+_SIGNATURES = {"png": (b"\x89PNG", b"IEND"), "pdf": (b"%PDF", b"%%EOF"), "svg": (b"<?xml", b"</svg>")}
+
+
+def is_plot(path: str | Path) -> bool:
+    """True for a plot gonio wrote (it may be replaced)."""
+    try:
+        with open(path, "rb") as fh:
+            return PLOT_MARK.encode() in fh.read(8 << 20)
+    except OSError:
+        return False
+
+
+def plot_format(path: str | Path) -> str:
+    """``png``, ``pdf`` or ``svg`` from the path's extension; :class:`ConfigError` otherwise."""
+    fmt = PLOT_FORMATS.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise ConfigError(f"plot {path}: unknown extension {Path(path).suffix or '(none)'!r}; "
+                          "end the name in .png, .pdf or .svg")
+    return fmt
+
+
+def save_figure(fig: Any, path: str | Path, *, make_parents: bool = False) -> Path:
+    """Save a matplotlib figure through the writer (format from the extension, verified)."""
+    path = Path(path)
+    fmt = plot_format(path)
+    if make_parents:
+        ensure_folder(path.parent, what="plot folder")
+    head, tail = _SIGNATURES[fmt]
+
+    def verify(tmp: Path) -> None:
+        data = tmp.read_bytes()
+        if not data.startswith(head) or tail not in data[-64:] or PLOT_MARK.encode() not in data:
+            raise ValueError(f"not a whole {fmt.upper()} file")
+
+    meta = {"Software" if fmt == "png" else "Creator": f"{PLOT_MARK} (matplotlib)"}
+    with atomic_output(path, what=WHAT, verify=verify, ours=is_plot) as tmp:
+        fig.savefig(tmp, dpi=110, format=fmt, metadata=meta)
+    return path
 
 
 def _pyplot() -> Any:
@@ -39,8 +87,8 @@ def plot_slices(
     measured: IsotropicTable, truth: IsotropicTable | None, path: str | Path, title: str = ""
 ) -> Path:
     """In-plane BRDF slices (measured points, truth lines) and measured-vs-truth scatter."""
+    plot_format(path)
     plt = _pyplot()
-    path = Path(path)
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5))
     ti = measured.centers()[0]
     picks = np.unique(np.linspace(0, len(ti) - 1, min(5, len(ti))).round().astype(int))
@@ -69,9 +117,10 @@ def plot_slices(
         ax2.axis("off")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path)
+    finally:
+        plt.close(fig)
 
 
 REASON_COLOURS = {
@@ -90,8 +139,8 @@ REASON_COLOURS = {
 def plot_sweep(sweep: Sweep, path: str | Path, title: str = "") -> Path:
     """Accepted and rejected poses on (θh, θd) and on the hemisphere (camera direction
     relative to the light: radius θr, angle Δφ), and every axis against the estimated time."""
+    plot_format(path)
     plt = _pyplot()
-    path = Path(path)
     fig = plt.figure(figsize=(13, 9))
     ax_hd = fig.add_subplot(2, 2, 1)
     ax_hemi = fig.add_subplot(2, 2, 2, projection="polar")
@@ -141,7 +190,7 @@ def plot_sweep(sweep: Sweep, path: str | Path, title: str = "") -> Path:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, make_parents=True)
+    finally:
+        plt.close(fig)

@@ -56,7 +56,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.simworld.serve": ("serve_servos", "serve_rig", "serve_dmx"),
     "calibration.raw": ("inspect_raw", "format_inspection"),
     "drivers.dynamixel.bus": ("COMMON_BAUD_RATES",),
-    "drivers.errors": ("GonioError", "ConfigError", "SessionError"),
+    "drivers.errors": ("GonioError", "ConfigError", "SessionError", "StorageError",
+                       "OutputRefused"),
+    "drivers.storage": ("os_error_line",),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
@@ -145,4 +147,5 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.tables import IsotropicTable, MerlTable
     from calibration.raw import format_inspection, inspect_raw
     from drivers.dynamixel.bus import COMMON_BAUD_RATES
-    from drivers.errors import ConfigError, GonioError, SessionError
+    from drivers.errors import ConfigError, GonioError, OutputRefused, SessionError, StorageError
+    from drivers.storage import os_error_line

@@ -42,7 +42,7 @@ def run_demo(
     t0 = time.monotonic()
     session = Path(out_root) / time.strftime("session-%Y%m%d-%H%M%S")
     result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress)
-    with result.session.journal() as journal:
+    with result.session.journal(readonly=True) as journal:
         estimate = float(journal.meta("estimate")["estimated_s"])
     reduction = api.reduce(session, session / "brdf.h5")
     truth = truth_table(session)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +27,13 @@ from acquisition.session.observers import Observer
 from acquisition.session.status import LINK_STATS_META
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
-from drivers.errors import SessionError
+from acquisition.tables.isotropic import WHAT as TABLE_WHAT
+from acquisition.tables.isotropic import is_table_file
+from drivers.errors import SessionError, StorageError
+from drivers.storage import check_output
+
+DEFAULT_TABLE = "brdf.h5"
+"""Where ``reduce`` writes in the session folder when no table path is given."""
 
 Progress = Callable[[int, int, StepRecord], None]
 OnOpen = Callable[[SessionFolder, float | None], None]
@@ -130,12 +136,23 @@ def run_session(
         t0 = devices.device_time_s()
         engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
                                planner)
-        try:
+        with keeping_run_health(folder, devices):
             counts = engine.run()
-        finally:
-            record_run_health(folder, devices)
         t1 = devices.device_time_s()
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0)
+
+
+@contextmanager
+def keeping_run_health(folder: SessionFolder, devices: RigDevices) -> Iterator[None]:
+    """Record the run's health when the block ends; when the block failed, a journal that
+    cannot be written then (full disk) does not hide the block's own error."""
+    try:
+        yield
+    except BaseException:
+        with suppress(StorageError):
+            record_run_health(folder, devices)
+        raise
+    record_run_health(folder, devices)
 
 
 def record_run_health(folder: SessionFolder, devices: RigDevices) -> None:
@@ -204,7 +221,9 @@ def resume(
 
         return resume_lightstage(session_dir, progress=progress, observers=observers,  # type: ignore[return-value]
                                  prompt=prompt)
-    return run_session(SessionFolder(session_dir), sim_faults=sim_faults, progress=progress,
+    folder = SessionFolder(session_dir)
+    folder.require_writable()
+    return run_session(folder, sim_faults=sim_faults, progress=progress,
                        observers=observers, on_open=on_open, prompt=prompt)
 
 
@@ -283,6 +302,7 @@ def scripted_session(
         folder = SessionFolder(out)
         if not folder.info.scripted:
             raise SessionError(f"{out} is not a scripted session: continue it with `gonio resume {out}`")
+        folder.require_writable()
     else:
         rig, plan = load_rig(rig_path), load_plan(plan_path)
         material = _check_material(rig, material)
@@ -294,11 +314,9 @@ def scripted_session(
     mat = parse_material(spec) if spec else None
     planner = folder.planner()
     with open_devices(rig, planner, material=mat, seed=folder.info.seed,
-                      sim_faults=sim_faults, prompt=prompt) as devices:
-        try:
-            yield ScriptedSession(folder, devices, planner)
-        finally:
-            record_run_health(folder, devices)
+                      sim_faults=sim_faults, prompt=prompt) as devices, \
+            keeping_run_health(folder, devices):
+        yield ScriptedSession(folder, devices, planner)
 
 
 def reduce(
@@ -306,13 +324,19 @@ def reduce(
     table_path: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
-    """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5)."""
+    """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5).
+
+    Nothing is written into the session but the default table: a session on read-only media
+    reduces to a writable ``table_path``. An output that would overwrite the session's own
+    files, or an existing file that is not a gonio table, is refused before reducing.
+    """
     from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
 
+    out = Path(table_path) if table_path else Path(session_dir) / DEFAULT_TABLE
+    check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(session_dir,))
     if is_lightstage_session(session_dir):
         result: Reduction = reduce_lightstage_session(session_dir, progress)
     else:
         result = reduce_session(session_dir, progress)
-    out = Path(table_path) if table_path else Path(session_dir) / "brdf.h5"
-    result.table.save_h5(out)
+    result.table.save_h5(out, inputs=(session_dir,))
     return result

@@ -4,7 +4,8 @@ Each command group lives in its own module exposing ``COMMANDS`` (command name â
 help) and ``register(subparsers)``, which adds the full parser(s) with
 ``set_defaults(func=run)``; ``run(args) -> int`` returns the exit code. Only the command being
 run is registered in full, so ``gonio --help`` imports nothing but these modules. Errors
-derived from :class:`drivers.errors.GonioError` are printed as one line, never a traceback.
+derived from :class:`drivers.errors.GonioError` are printed as one line, never a traceback (an
+``OSError`` that escaped one too, as a last resort).
 
 Grammar shared by every command: outputs are ``-o/--out``; ``--json`` prints one JSON object
 on stdout instead of the text report; ``--seed`` is the simulated devices' noise seed;
@@ -84,6 +85,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except api.GonioError as exc:
         print(f"gonio: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # the last resort: a disk error nothing named is still one line
+        print(f"gonio: error: {api.os_error_line(exc)}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("gonio: interrupted", file=sys.stderr)
         return 130

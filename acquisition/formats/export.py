@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -16,11 +17,20 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.formats.merl import MERL_FILE_BYTES, MERL_SCALES, MerlBRDF, read_merl, write_merl
+from acquisition.formats.merl import (
+    MERL_FILE_BYTES,
+    MERL_SCALES,
+    MerlBRDF,
+    is_merl_file,
+    read_merl,
+    write_merl,
+)
+from acquisition.formats.merl import WHAT as MERL_WHAT
 from acquisition.geometry.halfdiff import MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
 from acquisition.tables import IsotropicTable
-from acquisition.tables.atomic import atomic_path
-from drivers.errors import ConfigError, StorageError
+from calibration.exr import exr_has, write_exr
+from drivers.errors import ConfigError
+from drivers.storage import atomic_output, check_folder, check_output, ensure_folder
 
 Table = IsotropicTable | MerlBRDF
 
@@ -85,13 +95,16 @@ def isotropic_to_merl(table: IsotropicTable) -> np.ndarray:
     return out.reshape(*MERL_SHAPE, 3)
 
 
-def export_merl(table: Table, out: Path) -> int:
+Inputs = Iterable[str | os.PathLike[str]]
+
+
+def export_merl(table: Table, out: Path, inputs: Inputs = ()) -> int:
     """Write a MERL binary; returns the number of measured bins."""
     if isinstance(table, MerlBRDF):
-        write_merl(out, table)  # byte for byte what was read
+        write_merl(out, table, inputs=inputs)  # byte for byte what was read
         return int(table.measured.sum())
     values = isotropic_to_merl(table)
-    write_merl(out, values)
+    write_merl(out, values, inputs=inputs)
     return int(np.isfinite(values).all(axis=-1).sum())
 
 
@@ -101,7 +114,23 @@ ISO_CSV_HEADER = ("theta_i_deg", "theta_r_deg", "delta_phi_deg", "R_per_sr", "G_
 MERL_CSV_HEADER = ("theta_h_deg", "theta_d_deg", "phi_d_deg", "R_per_sr", "G_per_sr", "B_per_sr")
 
 
-def export_csv(table: Table, out: Path) -> int:
+CSV_WHAT = "CSV export"
+
+
+def _csv_header(path: str | os.PathLike[str]) -> str | None:
+    try:
+        with open(path, "rb") as fh:
+            return fh.readline(512).decode("ascii").rstrip("\r\n")
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def is_csv_export(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` starts with the header row of a gonio CSV export (it may be replaced)."""
+    return _csv_header(path) in {",".join(ISO_CSV_HEADER), ",".join(MERL_CSV_HEADER)}
+
+
+def export_csv(table: Table, out: Path, inputs: Inputs = ()) -> int:
     """One row per measured bin (bin centres in degrees); returns the row count."""
     if isinstance(table, MerlBRDF):
         header = MERL_CSV_HEADER
@@ -117,7 +146,15 @@ def export_csv(table: Table, out: Path) -> int:
     fmt = ["%.10g"] * len(header)
     if header is ISO_CSV_HEADER:
         fmt[-1] = "%d"
-    with atomic_path(out, "CSV table") as tmp, open(tmp, "w", newline="") as fh:
+
+    def verify(tmp: Path) -> None:
+        with open(tmp, "rb") as fh:
+            lines = sum(1 for _ in fh)
+        if _csv_header(tmp) != ",".join(header) or lines != rows.shape[0] + 1:
+            raise ValueError(f"{lines} lines read back, wrote {rows.shape[0] + 1}")
+
+    with atomic_output(out, what=CSV_WHAT, verify=verify, ours=is_csv_export,
+                       inputs=inputs) as tmp, open(tmp, "w", newline="") as fh:
         csv.writer(fh).writerow(header)
         np.savetxt(fh, rows, fmt=fmt, delimiter=",")
     return int(rows.shape[0])
@@ -130,15 +167,18 @@ def _provenance(table: Table) -> dict[str, Any]:
     return dict(table.provenance)
 
 
-def export_exr(table: Table, out: Path) -> list[Path]:
+EXR_WHAT = "EXR slice"
+is_exr_slice = exr_has("gonio:quantity", "brdf")
+"""True for a BRDF slice gonio exported (it may be replaced)."""
+
+
+def export_exr(table: Table, out: Path, inputs: Inputs = ()) -> list[Path]:
     """One float32 EXR per first-axis bin (θi, or θh for MERL) in the folder ``out``.
 
     Image rows run over the second axis (θr / θd), columns over the third (Δφ / φd);
     channels R, G, B (sr⁻¹, NaN unmeasured) and ``count``. Units, bin edges and provenance
     are EXR attributes (``gonio:*``).
     """
-    import OpenImageIO as oiio
-
     if isinstance(table, MerlBRDF):
         names = ("theta_h", "theta_d", "phi_d")
         edges = merl_bin_edges()
@@ -149,39 +189,24 @@ def export_exr(table: Table, out: Path) -> list[Path]:
         edges = (table.theta_i_edges, table.theta_r_edges, table.delta_phi_edges)
         mean = table.mean
         count = table.count.astype(np.float32)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise StorageError(f"cannot create EXR folder {out}: {exc.strerror}; pick another -o") from None
-    prov = json.dumps(_provenance(table))
-    written = []
-    n1, n2 = mean.shape[1], mean.shape[2]
-    for k in range(mean.shape[0]):
+    paths = [out / f"{names[0]}_{k:03d}.exr" for k in range(mean.shape[0])]
+    ensure_folder(out, what="EXR folder", inputs=inputs)
+    for path in paths:  # refuse before writing any
+        check_output(path, what=EXR_WHAT, ours=is_exr_slice, inputs=inputs)
+    common: dict[str, object] = {
+        "gonio:units": "1/sr", "gonio:quantity": "brdf", "gonio:slice_axis": names[0],
+        "gonio:rows_axis": names[1], "gonio:columns_axis": names[2],
+        **{f"gonio:{name}_edges_deg": e for name, e in zip(names[1:], edges[1:], strict=True)},
+        "gonio:provenance": json.dumps(_provenance(table)),
+    }
+    for k, path in enumerate(paths):
         lo, hi = float(edges[0][k]), float(edges[0][k + 1])
-        path = out / f"{names[0]}_{k:03d}.exr"
-        spec = oiio.ImageSpec(n2, n1, 4, "float")
-        spec.channelnames = ("R", "G", "B", "count")
-        spec.attribute("gonio:units", "1/sr")
-        spec.attribute("gonio:quantity", "brdf")
-        spec.attribute("gonio:slice_axis", names[0])
-        spec.attribute(f"gonio:{names[0]}_deg", 0.5 * (lo + hi))
-        spec.attribute(f"gonio:{names[0]}_range_deg", oiio.TypeDesc("float[2]"), [lo, hi])
-        spec.attribute("gonio:rows_axis", names[1])
-        spec.attribute("gonio:columns_axis", names[2])
-        for name, e in zip(names[1:], edges[1:], strict=True):
-            spec.attribute(f"gonio:{name}_edges_deg", oiio.TypeDesc(f"float[{e.size}]"),
-                           [float(x) for x in e])
-        spec.attribute("gonio:provenance", prov)
-        pixels = np.concatenate([mean[k], count[k][..., None]], axis=-1).astype(np.float32)
-        with atomic_path(path, "EXR slice") as tmp:
-            tmp_exr = tmp.with_suffix(".exr")
-            o = oiio.ImageOutput.create(str(tmp_exr))
-            if o is None or not o.open(str(tmp_exr), spec) or not o.write_image(pixels):
-                raise StorageError(f"cannot write EXR {path}: {oiio.geterror()}")
-            o.close()
-            os.replace(tmp_exr, tmp)
-        written.append(path)
-    return written
+        pixels = np.concatenate([mean[k], count[k][..., None]], axis=-1)
+        write_exr(path, pixels, {**common, f"gonio:{names[0]}_deg": 0.5 * (lo + hi),
+                                 f"gonio:{names[0]}_range_deg": [lo, hi]},
+                  what=EXR_WHAT, channels=("R", "G", "B", "count"), ours=is_exr_slice,
+                  inputs=inputs)
+    return paths
 
 
 def export_table(
@@ -196,13 +221,20 @@ def export_table(
     except ValueError:
         raise ConfigError(f"unknown export format {fmt!r}: use merl, csv or exr") from None
     src = Path(table_path)
-    table = load_table(src)
     dest = Path(out) if out else src.with_name(src.stem + DEFAULT_SUFFIX[fmt])
+    inputs = (src,)
+    if fmt is ExportFormat.EXR:
+        check_folder(dest, what="EXR folder", inputs=inputs)
+    else:  # refuse before loading the table
+        check_output(dest, what=MERL_WHAT if fmt is ExportFormat.MERL else CSV_WHAT,
+                     ours=is_merl_file if fmt is ExportFormat.MERL else is_csv_export,
+                     inputs=inputs)
+    table = load_table(src)
     if fmt is ExportFormat.MERL:
-        return dest, export_merl(table, dest)
+        return dest, export_merl(table, dest, inputs)
     if fmt is ExportFormat.CSV:
-        return dest, export_csv(table, dest)
-    return dest, len(export_exr(table, dest))
+        return dest, export_csv(table, dest, inputs)
+    return dest, len(export_exr(table, dest, inputs))
 
 
 # ------------------------------------------------------------------------------ info

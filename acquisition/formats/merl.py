@@ -16,6 +16,7 @@ The simulated camera's ``merl:PATH`` material lives in :mod:`acquisition.simworl
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +28,9 @@ from acquisition.geometry.halfdiff import (
     halfdiff_rad_reference,
     merl_flat_index_rad,
 )
-from acquisition.tables.atomic import atomic_path
 from acquisition.tables.merl_table import MerlTable
 from drivers.errors import ConfigError
+from drivers.storage import atomic_output
 
 MERL_SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 """BRDF (sr⁻¹) = stored value × scale, per channel R, G, B."""
@@ -37,6 +38,7 @@ MERL_HEADER = (90, 90, 180)
 HEADER_BYTES = 12
 MERL_FILE_BYTES = HEADER_BYTES + 3 * MERL_BINS * 8
 """Exact size of a MERL file: 34,992,012 bytes."""
+WHAT = "MERL file"
 UNMEASURED = -1.0
 """Stored value written for unmeasured bins (any negative value marks one)."""
 
@@ -120,6 +122,23 @@ class MerlBRDF:
 
 
 # ---------------------------------------------------------------------------- file I/O
+def is_merl_file(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` has a MERL file's exact size and header (one gonio may replace)."""
+    try:
+        if os.path.getsize(path) != MERL_FILE_BYTES:
+            return False
+        with open(path, "rb") as fh:
+            header = np.frombuffer(fh.read(HEADER_BYTES), dtype="<i4")
+    except OSError:
+        return False
+    return len(header) == 3 and int(np.prod(header, dtype=np.int64)) == MERL_BINS
+
+
+def _verify_merl(tmp: Path) -> None:
+    if not is_merl_file(tmp):
+        raise ValueError(f"{os.path.getsize(tmp)} bytes, expected a {MERL_FILE_BYTES}-byte MERL file")
+
+
 def read_merl(path: str | os.PathLike[str]) -> MerlBRDF:
     """Read a MERL ``.binary`` file; raises :class:`ConfigError` if it is missing or malformed."""
     path = Path(path)
@@ -173,8 +192,11 @@ def write_merl(
     source: MerlBRDF | MerlTable | np.ndarray,
     *,
     unmeasured: float = UNMEASURED,
+    inputs: Iterable[str | os.PathLike[str]] = (),
 ) -> None:
-    """Write a MERL file (atomically) that the MERL reference reader loads.
+    """Write a MERL file that the MERL reference reader loads, through
+    :func:`drivers.storage.atomic_output` (an existing MERL file may be replaced, ``inputs`` and
+    any other file are refused).
 
     Parameters
     ----------
@@ -190,6 +212,7 @@ def write_merl(
     """
     stored = merl_stored_values(source, unmeasured)
     header = source.header if isinstance(source, MerlBRDF) else MERL_HEADER
-    with atomic_path(path, "MERL file") as tmp, open(tmp, "wb") as fh:
+    with atomic_output(path, what=WHAT, verify=_verify_merl, ours=is_merl_file,
+                       inputs=inputs) as tmp, open(tmp, "wb") as fh:
         fh.write(np.asarray(header, dtype="<i4").tobytes())
         fh.write(np.ascontiguousarray(stored, dtype="<f8").tobytes())

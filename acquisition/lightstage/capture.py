@@ -11,7 +11,6 @@ exactly the same sequence and skips what is done.
 from __future__ import annotations
 
 import dataclasses
-import json
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -24,7 +23,7 @@ from acquisition.lightstage.devices import LightStageDevices, open_lightstage
 from acquisition.lightstage.sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
 from acquisition.planning.planner import Planner
 from acquisition.session.engine import SessionEngine
-from acquisition.session.folder import INFO_FILE, SessionFolder, create_session
+from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
 from acquisition.session.status import PLANNED_STEPS_META
@@ -140,8 +139,7 @@ def capture_lightstage(
         journal.set_meta(META_KEY, {"sequences": list(sequences), "white": white, "dark": dark})
     steps = capture_steps(stage, sequences, white=white, dark=dark)
     estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
-    info = dataclasses.replace(folder.info, estimated_s=estimate.total_s)
-    (folder.path / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
+    folder.write_info(dataclasses.replace(folder.info, estimated_s=estimate.total_s))
     return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage,
                              prompt=prompt)
 
@@ -157,11 +155,12 @@ def resume_lightstage(
     """Continue a light-stage session: replay its sequence, skipping the frames done
     (``prompt``: see :func:`capture_lightstage`)."""
     folder = SessionFolder(session_dir)
-    with folder.journal() as journal:
+    with folder.journal(readonly=True) as journal:
         meta = journal.meta(META_KEY)
     if meta is None:
         raise SessionError(f"{folder.path} is not a light-stage session: continue it with "
                            f"`gonio resume {folder.path}`")
+    folder.require_writable()
     rig = folder.rig()
     stage = stage or stage_config(rig)
     steps = capture_steps(stage, meta["sequences"], white=meta["white"], dark=meta["dark"])

@@ -25,15 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.formats.envmap import read_exr, write_exr
 from acquisition.lightstage.reduce import _done, dark_rate, led_calibration, light_of, load_frame
 from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect
 from acquisition.session.folder import SessionFolder
 from acquisition.session.steps import POSE
+from calibration.exr import exr_has, read_exr, write_exr
 from drivers.errors import SessionError
+from drivers.storage import check_folder, check_output, ensure_folder
 
 UNITS = "sr^-1: radiance per unit normal irradiance from the light"
 FILE_FORMAT = "light-{index:03d}.exr"
+WHAT = "reflectance-field image"
+is_field_image = exr_has("gonio:light_index")
+"""True for a reflectance-field image gonio wrote (it may be replaced)."""
 
 
 @dataclass(frozen=True)
@@ -79,20 +83,26 @@ def write_field(session_dir: str | Path, out_dir: str | Path) -> list[Path]:
     EXR paths in dome order."""
     folder = SessionFolder(session_dir)
     rig = folder.rig()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    inputs = (folder.path,)
+    out = check_folder(out_dir, what="reflectance field", inputs=inputs)
     cal = led_calibration(folder.path)
     records = _done(folder)
+    olat = [r for r in records if r.kind == POSE and light_of(r) is not None]
+    if not olat:
+        raise SessionError(f"{folder.path} has no OLAT sample frame: capture with --sequence olat")
+    ensure_folder(out, what="reflectance field", inputs=inputs)
+    for rec in olat:  # refuse before writing any
+        check_output(out / FILE_FORMAT.format(index=light_of(rec)), what=WHAT,
+                     ours=is_field_image, inputs=inputs)
     dark = dark_rate(folder, records)
     from acquisition.config.stage import stage_config
 
     stage = stage_config(rig)
     relative = cal.relative
     paths = []
-    for rec in records:
+    for rec in olat:
         k = light_of(rec)
-        if rec.kind != POSE or k is None:
-            continue
+        assert k is not None
         image = load_frame(folder, rec, dark)
         r2 = _distance_sq(folder, stage.directions[k], stage.camera_dir, image.valid.shape)
         field = image.rgb / cal.require(k, str(folder.path)) * r2[..., None]
@@ -108,10 +118,8 @@ def write_field(session_dir: str | Path, out_dir: str | Path) -> list[Path]:
             "gonio:units": UNITS,
             "gonio:session": str(folder.path.resolve()),
             "gonio:step": rec.step,
-        })
+        }, what=WHAT, ours=is_field_image, inputs=inputs)
         paths.append(path)
-    if not paths:
-        raise SessionError(f"{folder.path} has no OLAT sample frame: capture with --sequence olat")
     return sorted(paths)
 
 

@@ -17,9 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.formats.envmap import latlong_directions, read_exr, write_exr
+from acquisition.formats.envmap import latlong_directions
 from acquisition.lightstage.field import ReflectanceField, load_field
+from calibration.exr import exr_has, read_exr, write_exr
 from drivers.errors import ConfigError
+from drivers.storage import check_output
 
 
 def light_weights(directions: np.ndarray, solid_angles_sr: np.ndarray,
@@ -55,8 +57,17 @@ def relight(field: ReflectanceField, env_latlong: np.ndarray) -> np.ndarray:
     return np.einsum("khwc,kc->hwc", field.images.astype(np.float64), weights)
 
 
+WHAT = "relit image"
+is_relit_image = exr_has("gonio:relit_from")
+"""True for a relit image gonio wrote (it may be replaced)."""
+
+
 def relight_files(field_dir: str | Path, env_path: str | Path, out_path: str | Path) -> np.ndarray:
-    """``gonio relight``: read the field and the map, write the relit EXR; returns the image."""
+    """``gonio relight``: read the field and the map, write the relit EXR; returns the image.
+
+    The output may replace a previous relit image, never an input or any other file."""
+    inputs = (env_path, field_dir, *Path(field_dir).glob("light-*.exr"))
+    check_output(out_path, what=WHAT, ours=is_relit_image, inputs=inputs)
     field = load_field(field_dir)
     env, _ = read_exr(env_path)
     image = relight(field, env)
@@ -65,5 +76,5 @@ def relight_files(field_dir: str | Path, env_path: str | Path, out_path: str | P
         "gonio:environment": str(Path(env_path).resolve()),
         "gonio:lights": len(field),
         "gonio:units": "radiance, in the environment map's units",
-    })
+    }, what=WHAT, ours=is_relit_image, inputs=inputs)
     return image

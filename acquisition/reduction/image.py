@@ -176,7 +176,7 @@ def iter_session_samples(
     if not rig.sample.image_based:
         raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
     cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
-    with folder.journal() as journal:
+    with folder.journal(readonly=True) as journal:
         records = [r for r in journal.steps() if r.status == "done"]
         complete = {g for g in {hdr_group(r.note) for r in records} - {None}
                     if journal.meta(f"{HDR_DONE_META}{g}") is not None}
@@ -263,7 +263,7 @@ def reduce_image_session(
     folder = SessionFolder(session_dir)
     rig, plan = folder.rig(), folder.plan()
     cal = find_bundle(folder, bundle)
-    with folder.journal() as journal:
+    with folder.journal(readonly=True) as journal:
         done = [r for r in journal.steps() if r.status == "done"]
         complete = {g for g in {hdr_group(r.note) for r in done} - {None}
                     if journal.meta(f"{HDR_DONE_META}{g}") is not None}

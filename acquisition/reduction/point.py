@@ -229,7 +229,7 @@ def reduce_session(
 
 def _done_records(folder: SessionFolder) -> tuple[list[StepRecord], set[int]]:
     """The journal's captured steps, and the HDR brackets it records as complete."""
-    with folder.journal() as journal:
+    with folder.journal(readonly=True) as journal:
         records = [r for r in journal.steps() if r.status == "done"]
         groups = {g for g in (hdr_group(r.note) for r in records) if g is not None}
         complete = {g for g in groups if journal.meta(f"{HDR_DONE_META}{g}") is not None}

@@ -5,7 +5,6 @@ power cut continues exactly where it stopped. Every frame is written atomically 
 
 from __future__ import annotations
 
-import errno
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import AbstractContextManager
@@ -32,7 +31,6 @@ from acquisition.session.steps import (
     Reference,
     Step,
 )
-from acquisition.session.storage import TMP_SUFFIX, atomic_target, sha256_file
 from calibration.hdr import BracketPolicy, bracket
 from drivers.errors import (
     CommunicationError,
@@ -40,8 +38,8 @@ from drivers.errors import (
     HardwareError,
     SafetyStop,
     SessionError,
-    StorageError,
 )
+from drivers.storage import atomic_output, is_partial, sha256_file
 
 if TYPE_CHECKING:
     from acquisition.session.observers import Observer
@@ -193,10 +191,11 @@ class SessionEngine:
     def verify_done_steps(self, journal: Journal) -> int:
         """Send back to 'planned' every done step whose frame is missing or fails its hash.
 
-        Half-written frames (``*.partial``) are deleted. Returns the number of steps to redo.
+        Half-written frames (:func:`drivers.storage.is_partial`) are deleted. Returns the
+        number of steps to redo.
         """
         redo = 0
-        for partial in self.folder.frames_dir.glob(f"*{TMP_SUFFIX}"):
+        for partial in sorted(p for p in self.folder.frames_dir.iterdir() if is_partial(p)):
             partial.unlink()
             journal.log("warning", f"discarded the half-written frame {partial.name}")
         for rec in journal.steps():
@@ -491,8 +490,9 @@ class SessionEngine:
         retries = self.rig.camera.max_exposure_retries if retake_clipped else 0
         for attempt in range(retries + 1):
             try:
-                with atomic_target(final) as tmp:
-                    self._capture(tmp, exposure_s, iso, seed_base + attempt)
+                with atomic_output(final, what="frame", ours=True, own_session=True,
+                                   retry=f", then `gonio resume {self.folder.path}`") as tmp:
+                    self.devices.capture(tmp, exposure_s, iso, seed_base + attempt)
                     with self.devices.host_work():
                         clipped = attempt < retries and self.saturated(tmp)
                     if clipped:
@@ -508,21 +508,6 @@ class SessionEngine:
             )
             self._completed(rec.step, final)
         return final
-
-    def _capture(self, tmp: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
-        try:
-            self.devices.capture(tmp, exposure_s, iso, frame_seed)
-        except (OSError, StorageError) as exc:
-            full = (errno.ENOSPC, errno.EDQUOT)
-            cause = exc.__cause__
-            if getattr(exc, "errno", None) in full or (
-                isinstance(cause, OSError) and cause.errno in full
-            ):
-                raise StorageError(
-                    f"disk full writing frame {tmp.name.removesuffix(TMP_SUFFIX)} in "
-                    f"{self.folder.frames_dir}: free space, then `gonio resume {self.folder.path}`"
-                ) from None
-            raise
 
     def _completed(self, step: int, frame: Path | None) -> None:
         assert self._journal is not None

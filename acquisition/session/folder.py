@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from acquisition.config.plan import PlanSpec, load_plan
 from acquisition.config.rig import RigConfig, load_rig
@@ -37,14 +38,8 @@ from acquisition.session.steps import (
     Reference,
     sweep_steps,
 )
-from drivers.errors import (
-    SessionError,
-    StorageError,
-)
-
-if TYPE_CHECKING:
-    pass
-
+from drivers.errors import SessionError, StorageError
+from drivers.storage import copy_file, ensure_folder, storage_error, write_blocker, write_text
 
 RIG_FILE = "rig.toml"
 
@@ -117,7 +112,27 @@ class SessionFolder:
         return self._plan
 
     def journal(self, *, readonly: bool = False) -> Journal:
+        """The journal; ``readonly`` never writes into the folder (inspection, reduction)."""
         return Journal(self.path / JOURNAL_FILE, readonly=readonly)
+
+    def require_writable(self) -> None:
+        """Refuse in one line, before anything runs, to resume a session whose folder is
+        read-only (resuming writes new frames and journal rows)."""
+        for where in (self.path, self.frames_dir, self.path / JOURNAL_FILE):
+            code = write_blocker(where) if where.exists() else None
+            if code is not None:
+                cause = "on a read-only filesystem" if code == errno.EROFS else "not writable by you"
+                raise StorageError(
+                    f"session {self.path} is {cause} ({where}): resuming needs write access to "
+                    "record new frames and journal steps; remount it read-write or "
+                    "copy the folder to a writable disk and resume the copy (`gonio info` and "
+                    "`gonio reduce -o PATH` work as it is)")
+
+    def write_info(self, info: SessionInfo) -> None:
+        """Replace ``session.json`` (atomically)."""
+        write_text(self.path / INFO_FILE, json.dumps(info.to_json(), indent=2), what="session file",
+                   ours=True, own_session=True, verify=_json_file)
+        self.info = info
 
     def planner(self) -> Planner:
         """The planner for the session's rig and plan, built once per folder object."""
@@ -161,17 +176,38 @@ def schedule_steps(sweep: Sweep, reference_joints: dict[str, float], reference_p
     return rows
 
 
+def _json_file(path: Path) -> None:
+    json.loads(path.read_text())
+
+
 def copy_calibration(source: str | Path, out: Path) -> str:
     """Copy a calibration file or folder into ``out/calibration``; returns its relative path."""
     source = Path(source)
+    dest = out / CALIBRATION_DIR
     if source.is_dir():
-        shutil.copytree(source, out / CALIBRATION_DIR)
+        for folder, _, files in os.walk(source):
+            target = dest / Path(folder).relative_to(source)
+            ensure_folder(target, what="session folder", own_session=True, retry=_NEW)
+            for name in files:
+                copy_file(Path(folder) / name, target / name, what="calibration copy",
+                          own_session=True, retry=_NEW)
         return CALIBRATION_DIR
     if not source.is_file():
         raise SessionError(f"calibration {source} does not exist: give a calibration file or folder")
-    (out / CALIBRATION_DIR).mkdir()
-    shutil.copyfile(source, out / CALIBRATION_DIR / source.name)
+    ensure_folder(dest, what="session folder", own_session=True, retry=_NEW)
+    copy_file(source, dest / source.name, what="calibration copy", own_session=True, retry=_NEW)
     return f"{CALIBRATION_DIR}/{source.name}"
+
+
+_NEW = " or choose another --out"
+"""The fix's second half when a new session cannot be written."""
+
+
+def _refuse_inside(out: Path, calibration: str | Path | None) -> None:
+    if calibration is not None and Path(calibration).is_dir() and \
+            Path(os.path.realpath(out)).is_relative_to(os.path.realpath(calibration)):
+        raise SessionError(f"--out {out} lies inside the calibration folder {calibration}, which "
+                           "the session copies: choose a folder outside it")
 
 
 def create_session(
@@ -207,16 +243,19 @@ def create_session(
     hdr = sweep is not None and plan.capture.hdr
     if sweep is not None and not sweep.steps:
         raise SessionError(f"plan {plan.path} leaves no measurable pose on this rig: widen its ranges")
-    out.mkdir(parents=True, exist_ok=True)
+    _refuse_inside(out, calibration)
+    existed = out.exists()
+    ensure_folder(out, what="session folder", retry=_NEW)
     try:
-        (out / FRAMES_DIR).mkdir()
-        shutil.copyfile(rig.path, out / RIG_FILE)
-        shutil.copyfile(plan.path, out / PLAN_FILE)
+        ensure_folder(out / FRAMES_DIR, what="session folder", own_session=True, retry=_NEW)
+        copy_file(rig.path, out / RIG_FILE, what="rig copy", own_session=True, retry=_NEW)
+        copy_file(plan.path, out / PLAN_FILE, what="plan copy", own_session=True, retry=_NEW)
         cal = None if calibration is None else copy_calibration(calibration, out)
         info = SessionInfo(material, seed, time.time(), rig.name, plan.name,
                            sweep.estimated_s if sweep else 0.0, cal, scripted)
-        (out / INFO_FILE).write_text(json.dumps(info.to_json(), indent=2))
-        with Journal(out / JOURNAL_FILE) as journal:
+        write_text(out / INFO_FILE, json.dumps(info.to_json(), indent=2), what="session file",
+                   own_session=True, retry=_NEW, verify=_json_file)
+        with Journal(out / JOURNAL_FILE, retry=_NEW) as journal:
             if hdr and sweep is not None:  # frames per pose known only once bracketed
                 journal.set_meta(HDR_SWEEP_META, [[*p.pose.as_tuple(), dict(p.joints)]
                                                   for p in sweep.steps])
@@ -226,13 +265,14 @@ def create_session(
                 )
                 journal.set_meta("rejected", sweep.rejected_counts())
                 journal.set_meta("estimate", sweep.summary())
-    except OSError as exc:
-        shutil.rmtree(out, ignore_errors=True)
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            raise StorageError(f"disk full creating session {out}: free space, then retry") from None
-        raise
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
+    except BaseException as exc:
+        if existed:  # an empty folder the operator made: leave it empty
+            for child in out.iterdir():
+                shutil.rmtree(child) if child.is_dir() else child.unlink()
+        else:
+            shutil.rmtree(out, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, StorageError):
+            raise storage_error(exc, out, "session folder", _NEW) from None
         raise
     return SessionFolder(out).adopt(rig, plan, planner), sweep
 

@@ -4,12 +4,19 @@ A step is planned once, when the session is created, with its pose and commanded
 Completing it records the frame's file name and SHA-256, the read-back joints, exposure and
 timestamps in one transaction, so after a crash every step is either done (with a frame whose
 hash can be checked) or still to do.
+
+A writer checkpoints the write-ahead log into ``journal.sqlite`` when it closes (a finished or
+stopped run), so a copied folder is complete. A reader (``readonly=True``) never writes: a
+checkpointed journal is opened ``immutable`` (no ``-wal``/``-shm`` files are made, read-only
+media work); one with a live write-ahead log (a run in progress) is opened ``mode=ro``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
+import os
 import sqlite3
 import time
 from collections.abc import Iterator, Sequence
@@ -18,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import SessionError, StorageError
+from drivers.storage import diagnose, storage_error, write_blocker
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -79,15 +87,46 @@ def _record(row: Sequence[Any]) -> StepRecord:
     )
 
 
+def _sqlite_errno(exc: sqlite3.Error, folder: Path) -> int | None:
+    """The errno behind an SQLite error (SQLite reports none), from its text or the folder."""
+    text = str(exc).lower()
+    if "full" in text:
+        return errno.ENOSPC
+    if "readonly" in text or "read-only" in text:
+        return write_blocker(folder) or errno.EROFS
+    if "unable to open" in text or "disk i/o" in text:
+        if not os.path.isdir(folder):
+            return errno.ENOENT
+        return diagnose(folder) or (errno.EIO if "i/o" in text else None)
+    return None
+
+
 class Journal:
     """Open (or create) the journal database of a session folder."""
 
-    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
+    def __init__(self, path: str | Path, *, readonly: bool = False,
+                 retry: str | None = None) -> None:
+        """``retry``: the fix's second half when a write fails (default: resume the session)."""
         self.path = Path(path)
+        self.readonly = readonly
+        self.retry = retry if retry is not None else f", then `gonio resume {self.path.parent}`"
+        sidecars = [self.path.with_name(self.path.name + s) for s in ("-wal", "-shm")]
+        fresh = [p for p in sidecars if not p.exists()]
         try:
-            if readonly:  # a reader beside a running capture: no schema writes
-                self._db = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True,
-                                           isolation_level=None)
+            self._open(readonly)
+        except (SessionError, StorageError):
+            with contextlib.suppress(AttributeError, sqlite3.Error):
+                self._db.close()
+            for p in fresh:  # empty side files SQLite made before it failed
+                with contextlib.suppress(OSError):
+                    if p.stat().st_size == 0:
+                        p.unlink()
+            raise
+
+    def _open(self, readonly: bool) -> None:
+        try:
+            if readonly:
+                self._db = self._open_reader()
                 self._db.execute("SELECT COUNT(*) FROM steps")
                 return
             self._db = sqlite3.connect(self.path, isolation_level=None)
@@ -97,10 +136,40 @@ class Journal:
             columns = {r[1] for r in self._db.execute("PRAGMA table_info(steps)")}
             if "note" not in columns:  # journals written before the column existed
                 self._db.execute("ALTER TABLE steps ADD COLUMN note TEXT")
+        except sqlite3.OperationalError as exc:
+            code = None if readonly else _sqlite_errno(exc, self.path.parent)
+            if code is not None:
+                raise self._storage_error(exc, code) from None
+            raise SessionError(f"journal {self.path} is unreadable ({exc}): the session is damaged") from None
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"journal {self.path} is unreadable ({exc}): the session is damaged") from None
 
+    def _open_reader(self) -> sqlite3.Connection:
+        """A connection that never writes (see the module docstring)."""
+        uri = self.path.resolve().as_uri()
+        wal = self.path.with_name(self.path.name + "-wal")
+        live = wal.is_file() and wal.stat().st_size > 0
+        if live and write_blocker(self.path.parent) is not None \
+                and not self.path.with_name(self.path.name + "-shm").is_file():
+            raise SessionError(
+                f"journal {self.path} has a write-ahead log that was never checkpointed (the run "
+                "did not end cleanly) and the folder is read-only: copy the session to a "
+                "writable disk to read it")
+        return sqlite3.connect(f"{uri}?mode=ro" + ("" if live else "&immutable=1"), uri=True,
+                               isolation_level=None)
+
+    def _storage_error(self, exc: sqlite3.Error, code: int) -> StorageError:
+        return storage_error(OSError(code, str(exc)), self.path, "the journal", self.retry)
+
+    def checkpoint(self) -> None:
+        """Move the write-ahead log into ``journal.sqlite`` and empty it (writers only)."""
+        self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+
     def close(self) -> None:
+        """Checkpoint (a writer; silently skipped when the disk is full) and close."""
+        if not self.readonly:
+            with contextlib.suppress(sqlite3.Error):
+                self.checkpoint()
         self._db.close()
 
     def __enter__(self) -> Journal:
@@ -113,10 +182,9 @@ class Journal:
         try:
             self._db.execute(sql, params)
         except sqlite3.OperationalError as exc:
-            if "full" in str(exc).lower():
-                raise StorageError(
-                    f"disk full writing the journal {self.path}: free space, then `gonio resume`"
-                ) from None
+            code = _sqlite_errno(exc, self.path.parent)
+            if code is not None:
+                raise self._storage_error(exc, code) from None
             raise
 
     # -- metadata ------------------------------------------------------------------------
@@ -142,8 +210,12 @@ class Journal:
                 [(i, k, ti, tr, dp, json.dumps(j)) for i, (k, ti, tr, dp, j) in enumerate(rows)],
             )
             self._db.execute("COMMIT")
-        except BaseException:
-            self._db.execute("ROLLBACK")
+        except BaseException as exc:
+            with contextlib.suppress(sqlite3.Error):
+                self._db.execute("ROLLBACK")
+            code = _sqlite_errno(exc, self.path.parent) if isinstance(exc, sqlite3.Error) else None
+            if code is not None:
+                raise self._storage_error(exc, code) from None  # type: ignore[arg-type]
             raise
 
     def add_step(

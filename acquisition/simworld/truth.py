@@ -29,7 +29,7 @@ def truth_table(session_dir: str | Path, material: Material | None = None) -> Is
     plan, kin = folder.plan(), folder.rig().kinematics()
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance={"truth": material.spec})
-    with folder.journal() as journal:
+    with folder.journal(readonly=True) as journal:
         for rec in journal.steps():
             if rec.status != "done" or rec.kind != POSE:
                 continue

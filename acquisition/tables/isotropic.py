@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -38,13 +38,32 @@ from acquisition.tables.accumulator import (
     TableStatistics,
 )
 from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
-from acquisition.tables.atomic import atomic_path
 from acquisition.tables.backend import kernels
 from drivers.errors import ConfigError
+from drivers.storage import atomic_output
 
 FORMAT = "gonio-isotropic-brdf"
 VERSION = 1
 _DATASETS = ("theta_i_edges", "theta_r_edges", "delta_phi_edges", "mean", "variance", "count")
+WHAT = "BRDF table"
+
+
+def is_table_file(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` is a ``gonio-isotropic-brdf`` HDF5 file (one gonio may replace)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return _attr_str(f.attrs.get("format")) == FORMAT
+    except (OSError, ValueError):
+        return False
+
+
+def _verify_table(shape: tuple[int, ...]) -> Any:
+    def verify(tmp: Path) -> None:
+        with h5py.File(tmp, "r") as f:
+            if _attr_str(f.attrs.get("format")) != FORMAT or f["count"].shape != shape:
+                raise ValueError("format attribute or count dataset missing")
+            f["mean"][(0,) * (len(shape) + 1)]  # data readable
+    return verify
 
 
 def _check_edges(name: str, edges: Any) -> np.ndarray:
@@ -250,16 +269,20 @@ class IsotropicTable(TableStatistics):
 
     # ------------------------------------------------------------------ HDF5
     def save_h5(
-        self, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None
+        self, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None, *,
+        inputs: Iterable[str | os.PathLike[str]] = (),
     ) -> None:
-        """Write the table atomically (temporary file in the same folder, fsync, rename).
+        """Write the table through :func:`drivers.storage.atomic_output` (temporary file in the
+        same folder, re-opened with h5py, fsync, rename).
 
-        ``provenance`` (default: :attr:`provenance`) is stored as a JSON string attribute.
-        Raises :class:`StorageError` when the file cannot be written.
+        ``provenance`` (default: :attr:`provenance`) is stored as a JSON string attribute. An
+        existing table may be replaced; any other existing file, and ``inputs``, are refused
+        (:class:`OutputRefused`). Raises :class:`StorageError` when the file cannot be written.
         """
         path = Path(path)
         prov = json.dumps(dict(self.provenance if provenance is None else provenance))
-        with atomic_path(path, "table") as tmp, h5py.File(tmp, "w") as f:
+        with atomic_output(path, what=WHAT, verify=_verify_table(self.shape), ours=is_table_file,
+                           inputs=inputs) as tmp, h5py.File(tmp, "w") as f:
             f.create_dataset("theta_i_edges", data=self.theta_i_edges)
             f.create_dataset("theta_r_edges", data=self.theta_r_edges)
             f.create_dataset("delta_phi_edges", data=self.delta_phi_edges)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.session.folder import JOURNAL_FILE, SessionFolder
-from acquisition.session.storage import TMP_SUFFIX, sha256_file
+from drivers.storage import is_partial, sha256_file
 
 
 @dataclass
@@ -74,7 +74,7 @@ def verify_session(path: str | Path) -> VerifyReport:
             report.mismatched.append(str(rec.frame))
     known = {str(r.frame) for r in done}
     report.unknown = sorted(p.name for p in folder.frames_dir.glob("*")
-                            if p.is_file() and p.name not in known and not p.name.endswith(TMP_SUFFIX))
+                            if p.is_file() and p.name not in known and not is_partial(p))
     if lost_wal:
         report.journal.append(
             "journal.sqlite-shm is here but journal.sqlite-wal is not: the journal's write-ahead "

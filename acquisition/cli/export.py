@@ -20,7 +20,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out, n = api.export_table(args.table, args.format, args.out)
-    what = "images" if args.format == api.ExportFormat.EXR else "measured bins"
-    report(args, {"out": out, "format": args.format, what.replace(" ", "_"): n}, [f"{out}: {n} {what}"])
+    result = api.export_table(args.table, args.format, args.out)
+    report(args, result, [result.line()])
     return 0

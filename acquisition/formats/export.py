@@ -26,7 +26,7 @@ from acquisition.formats.merl import (
     write_merl,
 )
 from acquisition.formats.merl import WHAT as MERL_WHAT
-from acquisition.geometry.halfdiff import MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
+from acquisition.geometry.halfdiff import MERL_BINS, MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
 from acquisition.tables import IsotropicTable
 from calibration.exr import exr_has, write_exr
 from drivers.errors import ConfigError
@@ -99,13 +99,37 @@ Inputs = Iterable[str | os.PathLike[str]]
 
 
 def export_merl(table: Table, out: Path, inputs: Inputs = ()) -> int:
-    """Write a MERL binary; returns the number of measured bins."""
+    """Write a MERL binary; returns the number of MERL bins holding a value."""
     if isinstance(table, MerlBRDF):
         write_merl(out, table, inputs=inputs)  # byte for byte what was read
         return int(table.measured.sum())
     values = isotropic_to_merl(table)
     write_merl(out, values, inputs=inputs)
     return int(np.isfinite(values).all(axis=-1).sum())
+
+
+@dataclass(frozen=True)
+class Exported:
+    """What :func:`export_table` wrote: where, and how much of it is measured."""
+
+    path: Path
+    format: str
+    count: int
+    """Images (EXR), rows (CSV) or MERL bins holding a value (MERL)."""
+    measured_bins: int
+    """Bins of the source table that hold a measurement."""
+    filled_bins: int = 0
+    """MERL bins given a value by the nearest measured isotropic bin (not measured there)."""
+
+    def line(self) -> str:
+        """The one-line report (``gonio export``)."""
+        if self.format == ExportFormat.EXR:
+            return f"{self.path}: {self.count} images of {self.measured_bins} measured bins"
+        if self.filled_bins:
+            return (f"{self.path}: {self.measured_bins} measured isotropic bins, copied by "
+                    f"nearest bin onto {self.filled_bins:,} of {MERL_BINS:,} MERL bins "
+                    "(none of them measured on the MERL grid itself)")
+        return f"{self.path}: {self.measured_bins} measured bins"
 
 
 # ------------------------------------------------------------------------------ CSV
@@ -211,11 +235,8 @@ def export_exr(table: Table, out: Path, inputs: Inputs = ()) -> list[Path]:
 
 def export_table(
     table_path: str | os.PathLike[str], fmt: ExportFormat | str, out: str | os.PathLike[str] | None
-) -> tuple[Path, int]:
-    """Export ``table_path`` as ``fmt`` to ``out`` (default beside the table).
-
-    Returns the output path and the number of measured bins (MERL, CSV) or images (EXR).
-    """
+) -> Exported:
+    """Export ``table_path`` as ``fmt`` to ``out`` (default beside the table)."""
     try:
         fmt = ExportFormat(fmt)
     except ValueError:
@@ -230,11 +251,14 @@ def export_table(
                      ours=is_merl_file if fmt is ExportFormat.MERL else is_csv_export,
                      inputs=inputs)
     table = load_table(src)
+    measured = int(table.measured.sum()) if isinstance(table, MerlBRDF) else int((table.count > 0).sum())
     if fmt is ExportFormat.MERL:
-        return dest, export_merl(table, dest, inputs)
+        n = export_merl(table, dest, inputs)
+        filled = 0 if isinstance(table, MerlBRDF) else n
+        return Exported(dest, fmt.value, n, measured, filled)
     if fmt is ExportFormat.CSV:
-        return dest, export_csv(table, dest, inputs)
-    return dest, len(export_exr(table, dest, inputs))
+        return Exported(dest, fmt.value, export_csv(table, dest, inputs), measured)
+    return Exported(dest, fmt.value, len(export_exr(table, dest, inputs)), measured)
 
 
 # ------------------------------------------------------------------------------ info

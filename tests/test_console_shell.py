@@ -361,7 +361,7 @@ def test_home_as_joints_and_home_by_default_is_park(
         ("[home]\njoints = { light_theta = 0, camera_theta = 45, camera_phi = 0, tilt = 1 }\n",
          r"\[home.joints\] tilt: names no axis of this rig"),
         ("[home]\njoints = { light_theta = 0, camera_theta = 45, camera_phi = 200 }\n",
-         r"\[home.joints\] camera_phi: must be ≤ 179, got 200"),
+         r"\[home.joints\] camera_phi: must be ≤ 179°, got 200°"),
         ("[home]\ntheta_i_deg = 30\ntheta_r_deg = 88\ndelta_phi_deg = 180\n",
          r"\[home\]: pose θi=30° θr=88° Δφ=180° is outside the joint limits"),
         ("home = 3\n", r"home: must be a table, got 3"),

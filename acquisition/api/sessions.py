@@ -12,9 +12,15 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
-from acquisition.config.plan import PlanSpec, load_plan
-from acquisition.config.rig import RigConfig, load_rig
-from acquisition.devices.rig import OperatorPrompt, RigDevices, open_devices
+from acquisition.config.plan import PlanSpec, check_plan_on_rig, load_plan
+from acquisition.config.rig import RigConfig, load_rig, require_servo_rig
+from acquisition.devices.rig import (
+    OperatorPrompt,
+    RigDevices,
+    check_camera_driver,
+    open_devices,
+    require_operator,
+)
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep
 from acquisition.planning.timing import TimeModel
@@ -27,6 +33,7 @@ from acquisition.session.observers import Observer
 from acquisition.session.status import LINK_STATS_META
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
+from acquisition.simworld.servos import check_sim_faults
 from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
 from drivers.errors import SessionError, StorageError
@@ -51,12 +58,22 @@ class CaptureResult:
 
 
 def plan_sweep(plan_path: str | Path, rig_path: str | Path) -> Sweep:
-    """Plan a sweep without moving anything: accepted/rejected poses and the time estimate."""
+    """Plan a sweep without moving anything: accepted/rejected poses and the time estimate.
+
+    Raises :class:`SessionError` when the plan leaves no pose to measure (as ``capture`` does).
+    """
     rig, plan = load_rig(rig_path), load_plan(plan_path)
+    require_servo_rig(rig, "gonio plan")
+    check_plan_on_rig(plan, rig)
     planner = Planner.for_plan(rig, plan)
     wr = rig.white_reference
     start = planner.joints_for(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))
-    return planner.plan(plan.poses(), start)
+    sweep = planner.plan(plan.poses(), start)
+    if not sweep.steps:
+        rejected = ", ".join(f"{n} {r}" for r, n in sweep.rejected_counts().items())
+        raise SessionError(f"plan {plan.path} leaves no measurable pose on this rig ({rejected}): "
+                           "check its units and ranges")
+    return sweep
 
 
 def predicted_step_s(records: Iterable[StepRecord], model: TimeModel,
@@ -187,11 +204,25 @@ def capture(
     the ``"sample"`` or ``"white"`` reference on a real rig (refused without one).
     """
     rig, plan = load_rig(rig_path), load_plan(plan_path)
+    _check_before_creating(rig, plan, "gonio capture", sim_faults, prompt)
     material = _check_material(rig, material)
     folder, _ = create_session(out, rig, plan, material=material, seed=seed,
                                calibration=calibration, planner=Planner.for_plan(rig, plan))
     return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers,
                        on_open=on_open, prompt=prompt)
+
+
+def _check_before_creating(rig: RigConfig, plan: PlanSpec, command: str,
+                           sim_faults: Sequence[str], prompt: OperatorPrompt | None) -> None:
+    """Everything the rig, plan and options allow to check before a session folder is created
+    or a device opened (ConfigError, one line): the rig's kind, what the plan asks of its
+    camera, the camera driver, an operator for a real camera, the fault specs."""
+    require_servo_rig(rig, command)
+    check_plan_on_rig(plan, rig)
+    check_camera_driver(rig)
+    check_sim_faults(rig, sim_faults)
+    if rig.camera.driver != "simulated":
+        require_operator(rig, prompt)
 
 
 def _check_material(rig: RigConfig, material: str | None) -> str | None:
@@ -219,10 +250,14 @@ def resume(
     if is_lightstage_session(session_dir):
         from acquisition.lightstage.capture import resume_lightstage
 
+        if sim_faults:  # refused: a light stage has no servo bus
+            check_sim_faults(SessionFolder(session_dir).rig(), sim_faults)
         return resume_lightstage(session_dir, progress=progress, observers=observers,  # type: ignore[return-value]
                                  prompt=prompt)
     folder = SessionFolder(session_dir)
     folder.require_writable()
+    if sim_faults:
+        check_sim_faults(folder.rig(), sim_faults)
     return run_session(folder, sim_faults=sim_faults, progress=progress,
                        observers=observers, on_open=on_open, prompt=prompt)
 
@@ -303,8 +338,10 @@ def scripted_session(
         if not folder.info.scripted:
             raise SessionError(f"{out} is not a scripted session: continue it with `gonio resume {out}`")
         folder.require_writable()
+        check_sim_faults(folder.rig(), sim_faults)
     else:
         rig, plan = load_rig(rig_path), load_plan(plan_path)
+        _check_before_creating(rig, plan, "a scripted session", sim_faults, prompt)
         material = _check_material(rig, material)
         folder, _ = create_session(out, rig, plan, material=material, seed=seed,
                                    calibration=calibration, scripted=True,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from acquisition import api
 from acquisition.cli.capture import estimate_line
+from acquisition.cli.operator import operator_output
 from acquisition.cli.options import add_json, add_out, report
 
 COMMANDS = {"plan": "check and time a plan on a rig without moving anything"}
@@ -23,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    sweep = api.plan_sweep(args.plan, args.rig)
+    with operator_output():  # a plan whose angles look like radians warns
+        sweep = api.plan_sweep(args.plan, args.rig)
     summary = sweep.summary()
     lines = [estimate_line(summary),
              f"motion {sweep.motion_s:.1f} s; naive order {sweep.naive_motion_s:.1f} s; "

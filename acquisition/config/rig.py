@@ -2,6 +2,10 @@
 
 ``load_rig(path)`` parses and validates a rig file into a frozen :class:`RigConfig`; nothing
 is opened. Opening devices (real or simulated) is :mod:`acquisition.devices.rig`' job.
+
+Every number is checked against a plausible range (the ``*_RANGE_*`` constants below, listed
+in docs/formats.md), so a value in the wrong unit (radians for degrees, millimetres for
+metres) is refused when the file loads, before anything is created or sent.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from acquisition.config.toml import Section, load_toml
 from acquisition.geometry.kinematics import KINEMATICS, Kinematics, Pose
 from acquisition.geometry.kinematics.lightstage import LightStage
 from drivers.errors import ConfigError
+from simulators.sensor import SensorModel
 
 RIG_FORMAT_VERSION = 1
 
@@ -24,6 +29,45 @@ SIM_CLOCKS = ("stepped", "scaled")
 
 XM430_POSITION_TICKS = 4096
 """Ticks per revolution of an X-series servo in position mode."""
+
+# Plausible ranges of rig (and plan) fields: a value outside is refused in one line naming the
+# file, the field and the range (docs/formats.md lists them).
+DISTANCE_RANGE_M = (0.05, 5.0)
+"""``[geometry] light_distance_m`` / ``camera_distance_m``: sample to light / camera, m."""
+SHADOW_CONE_RANGE_DEG = (0.5, 45.0)
+"""``shadow_cone_deg`` (rig and plan): below 0.5° the camera would stand in the beam."""
+MAX_ELEVATION_RANGE_DEG = (5.0, 90.0)
+"""``max_elevation_deg`` (rig and plan)."""
+SETTLE_RANGE_S = (0.0, 10.0)
+EXPOSURE_RANGE_S = (1e-6, 3600.0)
+ISO_RANGE = (1, 409600)
+SIM_ISO_RANGE = (50, 102400)
+"""ISO speeds the simulated camera takes (:meth:`simulators.camera.SimCamera.capture`)."""
+JOINT_RANGE_DEG = (-360.0, 360.0)
+"""``[axes.*] min_deg`` / ``max_deg``."""
+PROFILE_RANGE = (1, 32767)
+"""``profile_velocity`` / ``profile_acceleration`` (X-series units). 0, the servo's "no
+limit", is refused: the time model and the swept-path checks need a finite profile."""
+TOLERANCE_RANGE_DEG = (0.0, 10.0)
+TIME_SCALE_RANGE = (1e-3, 1e4)
+INTENSITY_RANGE_W_PER_SR = (1e-9, 1e6)
+SAMPLE_SIZE_RANGE_M = (1e-3, 1.0)
+FOOTPRINT_DIAMETER_RANGE_M = (0.0, 1.0)
+"""``[light] spot_diameter_m`` and ``[camera] view_diameter_m``."""
+ARM_RADIUS_RANGE_M = (0.0, 0.5)
+ARM_EXTENT_RANGE_M = (0.0, 6.0)
+"""``[arms.*] from_m`` / ``to_m``, m from the sample centre."""
+CLEARANCE_RANGE_M = (0.0, 0.1)
+BUS_CYCLE_RANGE_S = (0.0, 1.0)
+MAX_EXPOSURE_RETRIES = 20
+FOCAL_RANGE_PX = (1e-3, 1e6)
+"""``[camera.intrinsics] fx`` / ``fy``, superpixels."""
+SENSOR_MAXIMA = {"width": 20000, "height": 20000, "full_well_e": 1e7, "gain_e_per_dn": 1e3,
+                 "read_noise_e": 1e3, "black_noise_dn": 1e3, "dark_current_e_per_s": 1e6,
+                 "prnu_sigma": 0.5, "electrons_per_radiance_s": 1e12, "f_number": 128.0,
+                 "vignetting_focal_px": 1e6}
+"""Upper bounds of ``[camera.sensor]`` parameters beyond :class:`SensorModel`'s own checks
+(positive, finite, even sizes, 8–16 bits)."""
 
 
 @dataclass(frozen=True)
@@ -210,6 +254,15 @@ class RigConfig:
             raise ConfigError(f"{self.path}: {exc}: add the missing tables to the rig file") from None
 
 
+def require_servo_rig(rig: RigConfig, command: str) -> None:
+    """Refuse a light-stage rig for a gonioreflectometer ``command`` (``"gonio capture"``, …),
+    in one line pointing at ``gonio lightstage capture``."""
+    if rig.kinematics_name == LightStage.name:
+        raise ConfigError(f"{rig.path} is a light-stage rig (kinematics = \"light-stage\"), and "
+                          f"{command} is for gonioreflectometer rigs: use `gonio lightstage "
+                          f"capture --rig {rig.path} --out DIR` (it prints its time estimate first)")
+
+
 _RIG_KEYS = {"format_version", "name", "kinematics", "simulation", "buses", "axes", "geometry",
              "light", "camera", "white_reference", "arms", "sample", "light_stage", "timing", "dmx", "home"}
 
@@ -235,8 +288,10 @@ def load_rig(path: str | Path) -> RigConfig:
     cam = top.section("camera")
     camera = _parse_camera(cam)
     white = _parse_white_reference(top.section("white_reference", {}))
-    light_distance = geo.number("light_distance_m", min=1e-3)
-    camera_distance = geo.number("camera_distance_m", min=1e-3)
+    light_distance = geo.number("light_distance_m", min=DISTANCE_RANGE_M[0],
+                                max=DISTANCE_RANGE_M[1], unit="m")
+    camera_distance = geo.number("camera_distance_m", min=DISTANCE_RANGE_M[0],
+                                 max=DISTANCE_RANGE_M[1], unit="m")
     sample = top.section("sample", {})
     sample.check_keys({"size_m", "shape", "radius_m", "centre_m", "image_based"})
     sample_cfg = _parse_sample(sample, camera)
@@ -254,10 +309,15 @@ def load_rig(path: str | Path) -> RigConfig:
         axes=axes,
         light_distance_m=light_distance,
         camera_distance_m=camera_distance,
-        light_intensity_w_per_sr=light.number("intensity_w_per_sr", 1.0, min=1e-9),
-        shadow_cone_deg=geo.number("shadow_cone_deg", 8.0, min=0, max=90),
-        max_elevation_deg=geo.number("max_elevation_deg", 85.0, min=1, max=90),
-        settle_s=geo.number("settle_s", 0.05, min=0),
+        light_intensity_w_per_sr=light.number("intensity_w_per_sr", 1.0,
+                                              min=INTENSITY_RANGE_W_PER_SR[0],
+                                              max=INTENSITY_RANGE_W_PER_SR[1], unit="W/sr"),
+        shadow_cone_deg=geo.angle("shadow_cone_deg", 8.0, min=SHADOW_CONE_RANGE_DEG[0],
+                                  max=SHADOW_CONE_RANGE_DEG[1]),
+        max_elevation_deg=geo.angle("max_elevation_deg", 85.0, min=MAX_ELEVATION_RANGE_DEG[0],
+                                    max=MAX_ELEVATION_RANGE_DEG[1]),
+        settle_s=geo.number("settle_s", 0.05, min=SETTLE_RANGE_S[0], max=SETTLE_RANGE_S[1],
+                            unit="s"),
         camera=camera,
         white_reference=white,
         time_scale=time_scale,
@@ -266,7 +326,8 @@ def load_rig(path: str | Path) -> RigConfig:
         arms=_parse_arms(top.section("arms", {}), light_distance, camera_distance),
         footprint=footprint,
         light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
-        bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes), min=0.0),
+        bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes),
+                                  min=BUS_CYCLE_RANGE_S[0], max=BUS_CYCLE_RANGE_S[1], unit="s"),
         sample=sample_cfg,
         home=home,
     )
@@ -288,7 +349,7 @@ def _parse_header(top: Section) -> str:
 
 def _parse_simulation(sim: Section) -> tuple[float, str]:
     """``[simulation]``: time_scale (simulated s per host s) and clock (:data:`SIM_CLOCKS`)."""
-    time_scale = sim.number("time_scale", 1.0, min=1e-3)
+    time_scale = sim.number("time_scale", 1.0, min=TIME_SCALE_RANGE[0], max=TIME_SCALE_RANGE[1])
     sim_clock = sim.get("clock", str, "stepped")
     if sim_clock not in SIM_CLOCKS:
         raise sim.error("clock", f"is '{sim_clock}': use one of {', '.join(SIM_CLOCKS)}")
@@ -306,10 +367,21 @@ def _parse_buses(sec: Section, fixed: bool) -> dict[str, BusConfig]:
         buses[name] = BusConfig(
             name=name,
             port=b.get("port", str, "sim"),
-            baud=b.integer("baud", 57600, min=9600),
+            baud=_baud(b),
             simulated=b.get("simulated", bool, False),
         )
     return buses
+
+
+def _baud(b: Section) -> int:
+    """``baud``: one of the rates dynamixel_sdk can set (default 57600)."""
+    from drivers.dynamixel.bus import COMMON_BAUD_RATES, SDK_BAUD_RATES
+
+    baud = b.integer("baud", 57600)
+    if baud not in SDK_BAUD_RATES:
+        raise b.error("baud", f"{baud} is not a rate dynamixel_sdk can set: use one the servos "
+                              f"are set to, e.g. {', '.join(map(str, COMMON_BAUD_RATES))}")
+    return baud
 
 
 def _parse_axes(sec: Section, buses: Mapping[str, BusConfig]) -> dict[str, AxisConfig]:
@@ -337,7 +409,8 @@ def _parse_axis(a: Section, name: str, buses: Mapping[str, BusConfig],
     direction = a.integer("direction", 1)
     if direction not in (1, -1):
         raise a.error("direction", f"must be 1 or -1, got {direction}")
-    min_deg, max_deg = a.number("min_deg"), a.number("max_deg")
+    min_deg, max_deg = (a.angle(k, min=JOINT_RANGE_DEG[0], max=JOINT_RANGE_DEG[1])
+                        for k in ("min_deg", "max_deg"))
     if not min_deg < max_deg:
         raise a.error("max_deg", f"must exceed min_deg ({min_deg:g} ≥ {max_deg:g})")
     zero = a.integer("zero_tick", 2048, min=0, max=XM430_POSITION_TICKS - 1)
@@ -348,9 +421,12 @@ def _parse_axis(a: Section, name: str, buses: Mapping[str, BusConfig],
     return AxisConfig(
         name=name, bus=bus, servo_id=sid, zero_tick=zero, direction=direction,
         min_deg=min_deg, max_deg=max_deg,
-        profile_velocity=a.integer("profile_velocity", 100, min=1, max=32767),
-        profile_acceleration=a.integer("profile_acceleration", 20, min=1, max=32767),
-        tolerance_deg=a.number("tolerance_deg", 0.5, min=0.0),
+        profile_velocity=a.integer("profile_velocity", 100, min=PROFILE_RANGE[0],
+                                   max=PROFILE_RANGE[1]),
+        profile_acceleration=a.integer("profile_acceleration", 20, min=PROFILE_RANGE[0],
+                                       max=PROFILE_RANGE[1]),
+        tolerance_deg=a.angle("tolerance_deg", 0.5, min=TOLERANCE_RANGE_DEG[0],
+                              max=TOLERANCE_RANGE_DEG[1], width=True),
     )
 
 
@@ -360,20 +436,48 @@ def _parse_camera(cam: Section) -> CameraConfig:
     cam.check_keys({"driver", "port", "exposure_s", "iso", "roi", "sensor", "max_exposure_retries",
                     "view_diameter_m", "intrinsics"})
     roi = cam.get("roi", list)
-    if len(roi) != 4 or not all(isinstance(v, int) for v in roi) or not (
-        roi[0] < roi[2] and roi[1] < roi[3]
+    if len(roi) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in roi) or not (
+        0 <= roi[0] < roi[2] and 0 <= roi[1] < roi[3]
     ):
-        raise cam.error("roi", f"must be [x0, y0, x1, y1] integers with x0 < x1, y0 < y1; got {roi}")
+        raise cam.error("roi", "must be [x0, y0, x1, y1] superpixels, whole numbers with "
+                               f"0 ≤ x0 < x1 and 0 ≤ y0 < y1; got {roi}")
+    driver = cam.get("driver", str, "simulated")
+    sensor = cam.get("sensor", dict, {})
+    if driver == "simulated" or sensor:
+        model = _parse_sensor(cam, sensor)
+        width, height = model.width // 2, model.height // 2
+        if driver == "simulated" and (roi[2] > width or roi[3] > height):
+            raise cam.error("roi", f"{roi} reaches beyond the simulated sensor's {width}×{height} "
+                                   "superpixels ([camera.sensor] width/2 × height/2; end "
+                                   "exclusive): move the ROI inside")
+    iso_range = SIM_ISO_RANGE if driver == "simulated" else ISO_RANGE
     return CameraConfig(
-        driver=cam.get("driver", str, "simulated"),
-        exposure_s=cam.number("exposure_s", 0.01, min=1e-6),
-        iso=cam.integer("iso", 100, min=1),
+        driver=driver,
+        exposure_s=cam.number("exposure_s", 0.01, min=EXPOSURE_RANGE_S[0],
+                              max=EXPOSURE_RANGE_S[1], unit="s"),
+        iso=cam.integer("iso", 100, min=iso_range[0], max=iso_range[1]),
         roi=tuple(roi),  # type: ignore[arg-type]
-        sensor=cam.get("sensor", dict, {}),
-        max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0),
+        sensor=sensor,
+        max_exposure_retries=cam.integer("max_exposure_retries", 4, min=0,
+                                         max=MAX_EXPOSURE_RETRIES),
         intrinsics=_parse_intrinsics(cam.section("intrinsics")) if "intrinsics" in cam else None,
         port=cam.get("port", str, None),
     )
+
+
+def _parse_sensor(cam: Section, sensor: dict[str, Any]) -> SensorModel:
+    """``[camera.sensor]`` as a :class:`SensorModel` (its own checks), within
+    :data:`SENSOR_MAXIMA`."""
+    model = SensorModel.from_dict(sensor, where=cam.where().replace("[camera]", "[camera.sensor]"))
+    sec = cam.section("sensor", {})
+    for key, top in SENSOR_MAXIMA.items():
+        value = getattr(model, key)
+        if value is not None and value > top:
+            raise sec.error(key, f"must be ≤ {top:g}, got {value:g}: check its unit")
+    if max(model.quantum_sensitivity) > 10:
+        raise sec.error("quantum_sensitivity", f"must be relative sensitivities ≤ 10, got "
+                                               f"{list(model.quantum_sensitivity)}")
+    return model
 
 
 def _parse_white_reference(wr: Section) -> WhiteReference:
@@ -385,9 +489,9 @@ def _parse_white_reference(wr: Section) -> WhiteReference:
         raise wr.error("reflectance", f"must be one number or [R, G, B] in (0, 1], got {refl}")
     return WhiteReference(
         reflectance=refl_rgb,  # type: ignore[arg-type]
-        theta_i=wr.number("theta_i_deg", 0.0, min=0, max=89),
-        theta_r=wr.number("theta_r_deg", 45.0, min=0, max=89),
-        delta_phi=wr.number("delta_phi_deg", 180.0, min=-180, max=360),
+        theta_i=wr.angle("theta_i_deg", 0.0, min=0, max=89),
+        theta_r=wr.angle("theta_r_deg", 45.0, min=0, max=89),
+        delta_phi=wr.angle("delta_phi_deg", 180.0, min=-180, max=360),
     )
 
 
@@ -417,14 +521,14 @@ def _parse_home(sec: Section, axes: Mapping[str, AxisConfig], fixed: bool) -> Ho
                                            f"({', '.join(axes)})")
         out = {}
         for name, cfg in axes.items():
-            out[name] = joints.number(name, min=cfg.min_deg, max=cfg.max_deg)
+            out[name] = joints.angle(name, min=cfg.min_deg, max=cfg.max_deg)
         return HomeConfig(joints_deg=out)
     if not given:
         raise sec.error(None, "is empty: give theta_i_deg, theta_r_deg, delta_phi_deg, or "
                               "joints = {axis = deg, …}")
-    theta_i = sec.number("theta_i_deg", min=0, max=89)
-    theta_r = sec.number("theta_r_deg", min=0, max=89)
-    delta_phi = sec.number("delta_phi_deg", min=-180, max=360)
+    theta_i = sec.angle("theta_i_deg", min=0, max=89)
+    theta_r = sec.angle("theta_r_deg", min=0, max=89)
+    delta_phi = sec.angle("delta_phi_deg", min=-180, max=360)
     return HomeConfig(pose_deg=(theta_i, theta_r, delta_phi))
 
 
@@ -441,10 +545,14 @@ def _check_home_reachable(sec: Section, rig: RigConfig, pose_deg: tuple[float, f
 
 def _parse_footprint(sample: Section, light: Section, cam: Section) -> FootprintConfig:
     """Sample size (``[sample]``), light spot (``[light]``) and camera view (``[camera]``), m."""
+    lo, hi = FOOTPRINT_DIAMETER_RANGE_M
     return FootprintConfig(
-        sample_size_m=sample.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
-        spot_diameter_m=light.number("spot_diameter_m", DEFAULT_SPOT_DIAMETER_M, min=0.0),
-        view_diameter_m=cam.number("view_diameter_m", DEFAULT_VIEW_DIAMETER_M, min=0.0),
+        sample_size_m=sample.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=SAMPLE_SIZE_RANGE_M[0],
+                                    max=SAMPLE_SIZE_RANGE_M[1], unit="m"),
+        spot_diameter_m=light.number("spot_diameter_m", DEFAULT_SPOT_DIAMETER_M, min=lo, max=hi,
+                                     unit="m"),
+        view_diameter_m=cam.number("view_diameter_m", DEFAULT_VIEW_DIAMETER_M, min=lo, max=hi,
+                                   unit="m"),
     )
 
 
@@ -519,23 +627,28 @@ def _parse_arms(sec: Section, light_distance_m: float, camera_distance_m: float)
     for name, distance in (("light", light_distance_m), ("camera", camera_distance_m)):
         a = sec.section(name, {})
         a.check_keys({"radius_m", "from_m", "to_m"})
-        radius = a.number("radius_m", DEFAULT_ARM_RADIUS_M[name], min=0.0)
-        start = a.number("from_m", DEFAULT_ARM_FROM_FRACTION * distance, min=0.0)
-        stop = a.number("to_m", distance + radius, min=0.0)
+        radius = a.number("radius_m", DEFAULT_ARM_RADIUS_M[name], min=ARM_RADIUS_RANGE_M[0],
+                          max=ARM_RADIUS_RANGE_M[1], unit="m")
+        start = a.number("from_m", DEFAULT_ARM_FROM_FRACTION * distance,
+                         min=ARM_EXTENT_RANGE_M[0], max=ARM_EXTENT_RANGE_M[1], unit="m")
+        stop = a.number("to_m", distance + radius, min=ARM_EXTENT_RANGE_M[0],
+                        max=ARM_EXTENT_RANGE_M[1], unit="m")
         if stop < start:
             raise a.error("to_m", f"must be ≥ from_m ({stop:g} < {start:g})")
         arms[name] = ArmConfig(radius, start, stop)
     return ArmsConfig(arms["light"], arms["camera"],
-                      sec.number("clearance_m", DEFAULT_CLEARANCE_M, min=0.0))
+                      sec.number("clearance_m", DEFAULT_CLEARANCE_M, min=CLEARANCE_RANGE_M[0],
+                                 max=CLEARANCE_RANGE_M[1], unit="m"))
 
 
 def _parse_intrinsics(sec: Section) -> CameraIntrinsics:
     """``[camera.intrinsics]``: fx, fy (default fx), cx, cy in superpixels."""
     sec.check_keys({"fx", "fy", "cx", "cy"})
-    fx = sec.number("fx", min=1e-6)
+    fx = sec.number("fx", min=FOCAL_RANGE_PX[0], max=FOCAL_RANGE_PX[1], unit="superpixels")
     cx = sec.number("cx") if "cx" in sec else None
     cy = sec.number("cy") if "cy" in sec else None
-    return CameraIntrinsics(fx, sec.number("fy", fx, min=1e-6), cx, cy)
+    fy = sec.number("fy", fx, min=FOCAL_RANGE_PX[0], max=FOCAL_RANGE_PX[1], unit="superpixels")
+    return CameraIntrinsics(fx, fy, cx, cy)
 
 
 def _parse_sample(sec: Section, camera: CameraConfig) -> SampleConfig:
@@ -545,9 +658,9 @@ def _parse_sample(sec: Section, camera: CameraConfig) -> SampleConfig:
         raise sec.error("shape", f"unknown '{shape}' (known: {', '.join(SAMPLE_SHAPES)})")
     centre = sec.get("centre_m", list, [0.0, 0.0, 0.0])
     if len(centre) != 3 or not all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in centre
+        isinstance(v, int | float) and not isinstance(v, bool) and abs(v) <= 1.0 for v in centre
     ):
-        raise sec.error("centre_m", f"must be [x, y, z] in metres, got {centre!r}")
+        raise sec.error("centre_m", f"must be [x, y, z] in metres, each within ±1 m, got {centre!r}")
     image_based = sec.get("image_based", bool, False)
     if image_based and camera.intrinsics is None:
         raise sec.error("image_based", "needs the camera's pinhole model: add [camera.intrinsics] fx")
@@ -555,8 +668,10 @@ def _parse_sample(sec: Section, camera: CameraConfig) -> SampleConfig:
         raise sec.error("shape", "a sphere sample is measured per pixel: set image_based = true")
     return SampleConfig(
         shape=shape,
-        size_m=sec.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=1e-6),
-        radius_m=sec.number("radius_m", 0.02, min=1e-6),
+        size_m=sec.number("size_m", DEFAULT_SAMPLE_SIZE_M, min=SAMPLE_SIZE_RANGE_M[0],
+                          max=SAMPLE_SIZE_RANGE_M[1], unit="m"),
+        radius_m=sec.number("radius_m", 0.02, min=SAMPLE_SIZE_RANGE_M[0] / 2,
+                            max=SAMPLE_SIZE_RANGE_M[1] / 2, unit="m"),
         centre_m=tuple(float(v) for v in centre),  # type: ignore[arg-type]
         image_based=image_based,
     )
@@ -579,8 +694,9 @@ def _parse_light_stage(sec: Section) -> LightStageConfig:
     dirs = []
     for i, row in enumerate(rows):
         if not (isinstance(row, list) and len(row) == width
-                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in row)):
-            raise sec.error(given[0], f"entry {i} must be {width} numbers, got {row!r}")
+                and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                        for v in row)):
+            raise sec.error(given[0], f"entry {i} must be {width} finite numbers, got {row!r}")
         if width == 2:
             d = _angles_to_dir(*row)
         else:
@@ -594,7 +710,12 @@ def _parse_light_stage(sec: Section) -> LightStageConfig:
     if not dirs:
         raise sec.error(given[0], "lists no light: add at least one")
     cam = sec.get("camera_angles_deg", list)
-    if len(cam) != 2 or not all(isinstance(v, int | float) for v in cam):
-        raise sec.error("camera_angles_deg", f"must be [theta_deg, phi_deg], got {cam!r}")
+    if len(cam) != 2 or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                and math.isfinite(v) for v in cam) or not (
+        0 <= cam[0] < 90 and -360 <= cam[1] <= 360
+    ):
+        raise sec.error("camera_angles_deg", "must be [theta_deg, phi_deg] with θ in [0, 90) and "
+                                             f"φ within ±360, got {cam!r}")
     return LightStageConfig(tuple(dirs), _angles_to_dir(*cam),  # type: ignore[arg-type]
-                            sec.number("tolerance_deg", 1e-6, min=0.0))
+                            sec.angle("tolerance_deg", 1e-6, min=TOLERANCE_RANGE_DEG[0],
+                                      max=TOLERANCE_RANGE_DEG[1], width=True))

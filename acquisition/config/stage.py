@@ -101,7 +101,8 @@ def stage_config(rig: RigConfig) -> StageConfig:
     """
     if rig.kinematics_name != LightStage.name or rig.light_stage is None:
         raise ConfigError(
-            f"{rig.path}: kinematics '{rig.kinematics_name}' is not a light stage: use a rig "
+            f"{rig.path}: kinematics '{rig.kinematics_name}' is not a light stage: capture on "
+            f"this rig with `gonio capture --rig {rig.path} --plan PLAN --out DIR`, or use a rig "
             "file with kinematics = \"light-stage\" and a [light_stage] table"
         )
     where = f"{rig.path}: [dmx]"

@@ -35,13 +35,14 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from acquisition.config.plan import warn_if_radians
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.devices.health import HealthLimits
 from acquisition.devices.servos import RouteNotice, ServoRig, open_servos, park_joints, park_ticks
 from acquisition.geometry.kinematics import Pose
 from acquisition.geometry.kinematics.lightstage import LightStage
 from acquisition.planning.planner import Planner, Rejection
-from acquisition.simworld.servos import scaled_clock, start_simulated_buses
+from acquisition.simworld.servos import check_sim_faults, scaled_clock, start_simulated_buses
 from drivers.dynamixel import COMMON_BAUD_RATES, ServoBus
 from drivers.dynamixel.codes import HARDWARE_BITS
 from drivers.errors import ConfigError, SafetyStop
@@ -237,7 +238,12 @@ class Console:
         return self.move_joints({axis: here + delta_deg})
 
     def move_pose(self, theta_i: float, theta_r: float, delta_phi: float) -> dict[str, float]:
-        """Move every axis to the joints of pose (θi, θr, Δφ) in degrees (nearest solution)."""
+        """Move every axis to the joints of pose (θi, θr, Δφ) in degrees (nearest solution).
+
+        Angles that all look like radians (within ±2π) warn (:class:`UnitsWarning`) first."""
+        warn_if_radians((theta_i, theta_r, delta_phi),
+                        f"move θi={theta_i:g} θr={theta_r:g} Δφ={delta_phi:g}",
+                        "give degrees (radians × 180/π)")
         joints = self.servos.planner.joints_for(Pose(theta_i, theta_r, delta_phi),
                                                 self.positions())
         return self.move_joints(joints)
@@ -355,6 +361,7 @@ def scan_rig(rig_path: str | Path, *, bauds: Iterable[int] = COMMON_BAUD_RATES,
     Raises ConfigError on a rig without moving axes (the light stage)."""
     rig = load_rig(rig_path)
     require_moving_axes(rig, "scan")
+    check_sim_faults(rig, sim_faults)
     bauds, ids = list(bauds), list(ids)
     with ExitStack() as stack:
         sims = {}

@@ -165,6 +165,12 @@ class RigDevices:
         """True when any pixel of the region of interest is clipped."""
         image = linearize(load_raw(frame))
         x0, y0, x1, y1 = self.rig.camera.roi
+        height, width = image.valid.shape
+        if x1 > width or y1 > height:  # a real camera's size is known from its first frame
+            raise ConfigError(
+                f"{self.rig.path}: [camera] roi {list(self.rig.camera.roi)} reaches beyond the "
+                f"camera's {width}×{height} superpixels (end exclusive): move the ROI inside"
+            )
         return not bool(np.all(image.valid[y0:y1, x0:x1]))
 
 

@@ -20,7 +20,12 @@ from acquisition.config.rig import MOTION_POLL_S, AxisConfig, RigConfig
 from acquisition.devices.health import HealthGuard, HealthLimits
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner
-from acquisition.simworld.servos import make_clock, start_simulated_buses, true_joints
+from acquisition.simworld.servos import (
+    check_sim_faults,
+    make_clock,
+    start_simulated_buses,
+    true_joints,
+)
 from drivers.dynamixel import (
     COMMON_BAUD_RATES,
     Axis,
@@ -196,6 +201,7 @@ def open_servos(
         Write every axis' motion profile and switch torque on (what a capture needs). A
         console leaves a real rig as it is (a servo in hardware error must stay readable).
     """
+    check_sim_faults(rig, sim_faults)  # a rig without simulated buses refuses them
     if clock is None and any(b.simulated for b in rig.buses.values()):
         clock = make_clock(rig)
     axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}

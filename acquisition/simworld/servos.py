@@ -7,10 +7,40 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 
 from acquisition.config.rig import RigConfig
+from acquisition.geometry.kinematics.lightstage import LightStage
 from drivers.dynamixel import Axis
+from drivers.errors import ConfigError
 from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
+from simulators.dynamixel.faults import Fault, parse_faults
 from simulators.dynamixel.rig import SimRig
+
+
+def check_sim_faults(rig: RigConfig, specs: Sequence[str | Fault]) -> list[Fault]:
+    """Parse ``--sim-fault`` specs against ``rig`` before anything is created or sent.
+
+    Raises
+    ------
+    ConfigError
+        A malformed spec (the syntax is shown), a rig with no simulated servo bus (the faults
+        would be ignored), or a fault naming a servo ID no simulated bus has.
+    """
+    if not specs:
+        return []
+    faults = parse_faults(specs)
+    simulated = {n for n, b in rig.buses.items() if b.simulated}
+    if not simulated:
+        what = ("a light stage has no servo bus" if rig.kinematics_name == LightStage.name
+                else "its [buses] are real hardware")
+        raise ConfigError(f"{rig.path}: --sim-fault {specs[0]} needs a simulated servo bus and "
+                          f"this rig has none ({what}): drop --sim-fault")
+    ids = sorted({a.servo_id for a in rig.axes.values() if a.bus in simulated})
+    for fault in faults:
+        if fault.servo_id is not None and fault.servo_id not in ids:
+            raise ConfigError(f"{rig.path}: --sim-fault {fault} names servo ID {fault.servo_id}, "
+                              f"which no simulated bus has: use one of IDs "
+                              f"{', '.join(map(str, ids))}")
+    return faults
 
 
 def make_clock(rig: RigConfig) -> SimClock:

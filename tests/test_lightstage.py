@@ -5,6 +5,7 @@ calibration and the BRDF table of a GGX sphere captured one light at a time."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -285,3 +286,15 @@ def test_the_ctrl_c_notice_speaks_of_lights_on_a_light_stage() -> None:
 
     assert "light" in api.LIGHTS_MESSAGE and "axes" not in api.LIGHTS_MESSAGE
     assert "axes" in api.FIRST_MESSAGE
+
+
+def test_cli_olat_capture_and_resume_finish_with_the_field(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "s"
+    assert main(["lightstage", "capture", "--rig", str(RIG), "-o", str(out), "--seed", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "313 steps done" in text
+    assert f"reflectance field: 156 EXRs in {out / 'field'}" in text
+    assert main(["lightstage", "resume", str(out), "--json"]) == 0  # nothing left: reports
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["counts"]["done"] == 313 and payload["field"]["images"] == 156

@@ -80,7 +80,7 @@ def _finish(args: argparse.Namespace, result: api.LightStageResult,
     if estimate is not None:
         payload["estimate"] = estimate
     if result.field is not None:
-        folder = result.session.path / api.api.FIELD_DIR
+        folder = result.session.path / api.FIELD_DIR
         lines.append(f"reflectance field: {len(result.field)} EXRs in {folder}")
         payload["field"] = {"folder": folder, "images": len(result.field)}
     report(args, payload, lines)

@@ -170,3 +170,6 @@ def material_from_spec(spec: str) -> Material:
             + " (e.g. lambert:albedo=0.5)"
         )
     return parser(rest)
+
+
+from simulators import material_models  # noqa: E402, F401  (registers the analytic models' specs)

@@ -1,2 +1,5 @@
-"""Radiometric (RAW linearization, dark, flat, noise, HDR, white reference) and geometric
-calibration. May import :mod:`drivers` (errors, camera interface), never :mod:`acquisition`."""
+"""Radiometric calibration: RAW loading, linearization, dark, flat, noise, HDR, white
+reference, bundles and EXR files (:mod:`calibration.exr`).
+
+May import: ``drivers.errors``, ``drivers.storage``.
+"""

@@ -1,5 +1,6 @@
-"""The house rules of ARCHITECTURE.md, enforced on the code: which room may import which, the
-CLI speaks only to the API, nothing else prints or prompts, and the API's exports resolve."""
+"""The house rules of ARCHITECTURE.md, enforced on the code: which room may import which
+(relative and string-literal dynamic imports included), each room's docstring repeats its row,
+the CLI speaks only to the API, nothing else prints or prompts, and the API's exports resolve."""
 
 from __future__ import annotations
 
@@ -45,6 +46,12 @@ def module_name(path: Path, root: Path) -> str:
     return ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
 
 
+def package_of(path: Path, root: Path) -> str:
+    """The package a file's relative imports start from: itself for an ``__init__.py``."""
+    module = module_name(path, root)
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
 def room_of(module: str, rooms: dict[str, tuple[str, ...]]) -> str | None:
     matches = [r for r in rooms if module == r or module.startswith(r + ".")]
     return max(matches, key=len) if matches else None
@@ -54,9 +61,42 @@ def _under(name: str, prefix: str) -> bool:
     return name == prefix or name.startswith(prefix + ".")
 
 
-def runtime_imports(tree: ast.AST, root: Path) -> list[tuple[int, str]]:
+def resolve_relative(module: str | None, level: int, package: str) -> str | None:
+    """The absolute name of ``from <level dots><module> import …`` in ``package`` (None when
+    it climbs above the top package, which Python refuses too)."""
+    if level == 0:
+        return module
+    parts = package.split(".") if package else []
+    if level - 1 >= len(parts):
+        return None
+    base = ".".join(parts[: len(parts) - (level - 1)])
+    return f"{base}.{module}" if module else base
+
+
+DYNAMIC_IMPORTS = ("import_module", "__import__")
+"""Calls that import the module their first argument names: ``importlib.import_module(…)``,
+``import_module(…)``, ``__import__(…)`` (also as ``builtins.__import__``)."""
+
+
+def dynamic_import(call: ast.Call, package: str) -> str | None:
+    """The module a dynamic import names with a string literal (relative names resolved
+    against ``package``); None for other calls or non-literal names."""
+    func = call.func
+    name = func.id if isinstance(func, ast.Name) else func.attr if isinstance(func, ast.Attribute) else None
+    if name not in DYNAMIC_IMPORTS or not call.args:
+        return None
+    arg = call.args[0]
+    if not (isinstance(arg, ast.Constant) and isinstance(arg.value, str)):
+        return None
+    dotted = arg.value.lstrip(".")
+    return resolve_relative(dotted or None, len(arg.value) - len(dotted), package)
+
+
+def runtime_imports(tree: ast.AST, root: Path, package: str = "") -> list[tuple[int, str]]:
     """Gonio modules imported at run time (``if TYPE_CHECKING:`` blocks are skipped): for
-    ``from A import b`` the module ``A.b`` when it is one, else ``A``."""
+    ``from A import b`` the module ``A.b`` when it is one, else ``A``; relative imports are
+    resolved against ``package`` (the importing file's), and dynamic imports of string
+    literals (:data:`DYNAMIC_IMPORTS`) count as imports."""
     found: list[tuple[int, str]] = []
 
     def is_module(dotted: str) -> bool:
@@ -69,10 +109,13 @@ def runtime_imports(tree: ast.AST, root: Path) -> list[tuple[int, str]]:
                 continue
             if isinstance(child, ast.Import):
                 found.extend((child.lineno, a.name) for a in child.names)
-            elif isinstance(child, ast.ImportFrom) and child.level == 0 and child.module:
-                for a in child.names:
-                    sub = f"{child.module}.{a.name}"
-                    found.append((child.lineno, sub if is_module(sub) else child.module))
+            elif isinstance(child, ast.ImportFrom):
+                base = resolve_relative(child.module, child.level, package)
+                for a in child.names if base else ():
+                    sub = f"{base}.{a.name}"
+                    found.append((child.lineno, sub if is_module(sub) else base))
+            elif isinstance(child, ast.Call) and (name := dynamic_import(child, package)):
+                found.append((child.lineno, name))
             visit(child)
 
     visit(tree)
@@ -87,7 +130,8 @@ def import_violations(root: Path, rules: dict[str, tuple[str, ...]]) -> list[Vio
         for path in sorted((root / package).rglob("*.py")):
             module = module_name(path, root)
             room = room_of(module, rules)
-            for line, imported in runtime_imports(ast.parse(path.read_text()), root):
+            tree = ast.parse(path.read_text())
+            for line, imported in runtime_imports(tree, root, package_of(path, root)):
                 own = room is not None and _under(imported, room)
                 allowed = room is not None and (own or any(_under(imported, p) for p in rules[room]))
                 into_cli = _under(imported, "acquisition.cli") and not _under(module, "acquisition.cli")
@@ -114,7 +158,27 @@ def terminal_io(root: Path) -> list[str]:
     return out
 
 
+MAY_IMPORT = re.compile(r"^May import:(.*?)(?:\n\s*\n|\Z)", re.MULTILINE | re.DOTALL)
+"""The paragraph of a room's package docstring that says what it may import."""
+
+
+def declared_imports(docstring: str) -> tuple[str, ...] | None:
+    """What a package docstring's ``May import:`` paragraph allows, sorted: its
+    double-backticked names outside parentheses (a remark in parentheses names nothing), none
+    for ``May import: nothing``; None when the docstring has no such paragraph or words it
+    otherwise (an empty list)."""
+    found = MAY_IMPORT.findall(docstring)
+    if len(found) != 1:
+        return None
+    text = re.sub(r"\([^()]*\)", "", found[0])
+    names = re.findall(r"``([\w.]+)``", text)
+    if not names:
+        return () if re.match(r"\s*nothing\b", text) else None
+    return tuple(sorted(names))
+
+
 RULES = import_rules(ROOT / "ARCHITECTURE.md")
+ROOM_PACKAGES = sorted(r for r in RULES if (ROOT / Path(*r.split(".")) / "__init__.py").is_file())
 
 
 def test_the_table_names_every_room() -> None:
@@ -124,6 +188,37 @@ def test_the_table_names_every_room() -> None:
     assert {f"acquisition.{r}" for r in rooms} <= set(RULES), "a room is missing from ARCHITECTURE.md"
     assert RULES["acquisition.cli"] == ("acquisition.api",)
     assert RULES["drivers"] == ()
+
+
+@pytest.mark.parametrize("room", ROOM_PACKAGES)
+def test_each_room_says_its_job_and_its_row_of_the_table(room: str) -> None:
+    init = ROOT / Path(*room.split(".")) / "__init__.py"
+    doc = ast.get_docstring(ast.parse(init.read_text())) or ""
+    job = doc.partition("May import:")[0].strip()
+    assert job, f"{init}: the docstring does not say the room's job"
+    declared = declared_imports(doc)
+    assert declared is not None, f"{init}: no one 'May import: ``a``, ``b``.' paragraph"
+    assert doc.lower().count("may import") == 1, f"{init}: says twice what it may import"
+    assert declared == tuple(sorted(RULES[room])), (
+        f"{init} says it may import {declared}; ARCHITECTURE.md says {RULES[room]}")
+
+
+def test_every_package_room_is_checked_for_its_docstring() -> None:
+    rooms = {f"acquisition.{p.name}" for p in (ROOT / "acquisition").iterdir()
+             if p.is_dir() and (p / "__init__.py").is_file()}
+    assert rooms | {"drivers", "simulators", "calibration"} <= set(ROOM_PACKAGES)
+
+
+@pytest.mark.parametrize(("doc", "expected"), [
+    ("Job.\n\nMay import: ``b.c``, ``a`` (and its own ``x``).\n", ("a", "b.c")),
+    ("Job.\n\nMay import: ``a``,\n``b``.\n\nMore prose with ``c``.", ("a", "b")),
+    ("Job.\n\nMay import: nothing (the bottom layer).", ()),
+    ("Job. May import `a` only.", None),
+    ("Job.\n\nMay import: everything below the API.", None),
+    ("Job.\n\nMay import: ``a``.\n\nMay import: ``b``.", None),
+])
+def test_declared_imports_reads_one_paragraph(doc: str, expected: tuple[str, ...] | None) -> None:
+    assert declared_imports(doc) == expected
 
 
 def test_every_import_follows_the_table() -> None:
@@ -147,18 +242,60 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
     "from acquisition.session import folder\n",
     "from drivers.errors import GonioError\n",
     "def run():\n    from acquisition.devices.rig import open_devices\n",
+    # relative imports, resolved against the importing file's package
+    "from ..session.folder import SessionFolder\n",
+    "from ..session import folder\n",
+    "from .. import devices\n",
+    "def run():\n    from ..devices.rig import open_devices\n",
+    # dynamic imports of string literals
+    "import importlib\nimportlib.import_module('acquisition.session.folder')\n",
+    "from importlib import import_module\nrig = import_module('acquisition.devices.rig')\n",
+    "import importlib\nimportlib.import_module('..session', __package__)\n",
+    "def run():\n    return __import__('drivers.errors')\n",
+    "import builtins\nbuiltins.__import__('acquisition.devices', fromlist=['rig'])\n",
 ])
 def test_the_rule_catches_a_cli_module_that_bypasses_the_api(tmp_path: Path, line: str) -> None:
-    root = _tree(tmp_path, {
-        "acquisition/__init__.py": "", "acquisition/api/__init__.py": "",
-        "acquisition/session/__init__.py": "", "acquisition/session/folder.py": "",
-        "acquisition/devices/__init__.py": "", "acquisition/devices/rig.py": "",
-        "drivers/__init__.py": "", "drivers/errors.py": "",
-        "acquisition/cli/__init__.py": "", "acquisition/cli/good.py": "from acquisition import api\n",
-        "acquisition/cli/bad.py": line,
-    })
+    root = _tree(tmp_path, {**CLI_TREE, "acquisition/cli/bad.py": line})
     bad = import_violations(root, RULES)
     assert [v.module for v in bad] == ["acquisition.cli.bad"], bad
+
+
+CLI_TREE = {
+    "acquisition/__init__.py": "", "acquisition/api/__init__.py": "",
+    "acquisition/session/__init__.py": "", "acquisition/session/folder.py": "",
+    "acquisition/devices/__init__.py": "", "acquisition/devices/rig.py": "",
+    "drivers/__init__.py": "", "drivers/errors.py": "",
+    "acquisition/cli/__init__.py": "", "acquisition/cli/good.py": "from acquisition import api\n",
+}
+"""A CLI that follows the rule, beside the rooms it must not reach."""
+
+
+@pytest.mark.parametrize("line", [
+    "from . import good\n",
+    "from .good import api\n",
+    "from .. import api\n",
+    "from ..api import capture\n",
+    "import importlib\nimportlib.import_module('acquisition.api')\n",
+    "import importlib\nimportlib.import_module('.good', __package__)\n",
+    "import importlib\nimportlib.import_module(name)\n",  # not a literal: not resolvable
+    "__import__('json')\n",
+])
+def test_relative_and_dynamic_imports_inside_the_rule_pass(tmp_path: Path, line: str) -> None:
+    root = _tree(tmp_path, {**CLI_TREE, "acquisition/cli/ok.py": line})
+    assert import_violations(root, RULES) == []
+
+
+def test_relative_imports_resolve_to_absolute_names(tmp_path: Path) -> None:
+    root = _tree(tmp_path, CLI_TREE)
+    source = ("from . import good\nfrom .. import session\nfrom ..session.folder import X\n"
+              "from .... import beyond\nimport importlib\nimportlib.import_module('..devices.rig', 'p')\n")
+    in_module = runtime_imports(ast.parse(source), root, package_of(root / "acquisition/cli/x.py", root))
+    assert in_module == [(1, "acquisition.cli.good"), (2, "acquisition.session"),
+                         (3, "acquisition.session.folder"), (6, "acquisition.devices.rig")]
+    init = package_of(root / "acquisition/cli/__init__.py", root)
+    assert init == "acquisition.cli"  # an __init__'s relative imports start from itself
+    assert runtime_imports(ast.parse("from ..devices import rig\n"), root, init) == [
+        (1, "acquisition.devices.rig")]
 
 
 def test_type_checking_imports_are_not_run_time_dependencies(tmp_path: Path) -> None:

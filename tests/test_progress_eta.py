@@ -4,17 +4,23 @@ run's own pace; checked on fake sequences, on a real session, and once through `
 
 from __future__ import annotations
 
+import argparse
+from functools import partial
 from pathlib import Path
 
 import pytest
+from conftest import LIGHTSTAGE_RIG, TINY_PLAN_ARGS, grid_plan_text, unfinish
+from tqdm import tqdm
 
 from acquisition import api
 from acquisition.cli import main, progress
+from acquisition.cli.capture import eta_from_time_model
 from acquisition.cli.progress import RunEta, format_eta
 from acquisition.config.plan import load_plan
 from acquisition.config.rig import load_rig
 from acquisition.planning.planner import Planner
 from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
+from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
 from acquisition.session.steps import CUSTOM, POSE, REFERENCE
 
@@ -135,3 +141,61 @@ def test_capture_bar_shows_the_time_model_eta(tmp_path: Path, monkeypatch: pytes
     assert frames and all("ETA " in f for f in frames[1:]), frames
     assert "7/7" in frames[-1] and frames[-1].rstrip().endswith("ETA 0:00]")
     assert "s/step" not in frames[-1] and "step/s" not in frames[-1]  # not tqdm's rate ETA
+
+
+def bar_lines(err: str, desc: str) -> list[str]:
+    """The frames a tqdm bar called ``desc`` drew on stderr."""
+    return [f for f in err.replace("\r", "\n").splitlines() if f.startswith(f"{desc}:")]
+
+
+def test_resume_prints_the_remaining_estimate(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(progress, "DISABLE", False)
+    plan_path = tmp_path / "plan.toml"
+    plan_path.write_text(grid_plan_text(*TINY_PLAN_ARGS))
+    out = tmp_path / "s"
+    api.capture(RIG, plan_path, out, material="lambert:albedo=0.5")
+    left = unfinish(out, 2)  # as an interrupted run leaves them
+    predicted = api.step_durations(out)
+    assert sorted(predicted) == sorted(left)
+    assert main(["resume", str(out)]) == 0
+    captured = capsys.readouterr()
+    minutes = sum(predicted.values()) / 60
+    assert f"2 steps left; estimated {minutes:.1f} min of rig time" in captured.out
+    frames = bar_lines(captured.err, "resume")
+    assert frames and all("ETA " in f for f in frames[1:]), frames
+    assert main(["resume", str(out), "--json"]) == 0  # --json: one JSON object, no estimate
+    assert "steps left" not in capsys.readouterr().out
+
+
+def test_lightstage_bar_eta_derives_from_its_estimate(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(progress, "DISABLE", False)
+    for name in ("capture_lightstage", "plan_lightstage"):  # 9 frames, not 156 white + dark more
+        monkeypatch.setattr(api, name, partial(getattr(api, name), white=False, dark=False))
+    out = tmp_path / "l"
+    assert main(["lightstage", "capture", "--rig", str(LIGHTSTAGE_RIG), "-o", str(out),
+                 "--sequence", "sh", "--material", "lambert:albedo=0.5"]) == 0
+    captured = capsys.readouterr()
+    estimate = api.plan_lightstage(LIGHTSTAGE_RIG, ["sh"])
+    assert estimate.frames == 9
+    assert f"estimated {estimate.total_s:.1f} s of rig time" in captured.out
+    frames = bar_lines(captured.err, "capture")
+    assert frames and all("ETA " in f for f in frames[1:]), frames
+    n = estimate.frames
+    assert f"{n}/{n}" in frames[-1] and frames[-1].rstrip().endswith("ETA 0:00]")
+    # the bar's predictions: one per journal step (frame), adding up to the estimate
+    predicted = api.step_durations(out, pending_only=False)
+    assert sorted(predicted) == list(range(n))
+    assert sum(predicted.values()) == pytest.approx(estimate.total_s, rel=1e-9)
+    bar = progress.StepBar(tqdm(disable=True))
+    eta_from_time_model(bar, argparse.Namespace(json=False), announce=False)(SessionFolder(out), None)
+    assert bar.eta is not None and bar.eta.predicted_left_s == 0.0  # all done
+    left = unfinish(out, 3)
+    assert main(["lightstage", "resume", str(out)]) == 0
+    captured = capsys.readouterr()
+    minutes = sum(predicted[k] for k in left) / 60
+    assert f"3 steps left; estimated {minutes:.1f} min of rig time" in captured.out
+    assert f"{n} steps done" in captured.out
+    frames = bar_lines(captured.err, "resume")
+    assert frames and all("ETA " in f for f in frames[1:]), frames

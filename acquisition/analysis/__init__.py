@@ -1,4 +1,5 @@
 """From table to insight: plots of plans and tables.
 
-May import: everything below ``acquisition.api`` except ``acquisition.cli``.
+May import: ``acquisition.geometry``, ``acquisition.planning``, ``acquisition.tables``,
+``drivers.errors``, ``drivers.storage``.
 """

@@ -7,6 +7,9 @@
 
 Every name is loaded on first use (PEP 562), so ``import acquisition.api`` and ``gonio --help``
 stay fast: a command pays only for the modules it uses.
+
+May import: ``acquisition``, ``calibration``, ``drivers`` (every room below it; never
+``acquisition.cli``).
 """
 
 from __future__ import annotations

@@ -37,15 +37,18 @@ def run_demo(
     plan: str | Path = EXAMPLES / "plan-demo.toml",
     seed: int = 1,
     progress: api.Progress | None = None,
+    on_open: api.OnOpen | None = None,
 ) -> DemoResult:
-    """Run the whole pipeline on the simulated rig into a new folder under ``out_root``."""
+    """Run the whole pipeline on the simulated rig into a new folder under ``out_root``
+    (``progress``, ``on_open``: see :func:`acquisition.api.capture`)."""
     t0 = time.monotonic()
     session = Path(out_root) / time.strftime("session-%Y%m%d-%H%M%S")
-    result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress)
+    result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress,
+                         on_open=on_open)
     with result.session.journal(readonly=True) as journal:
         estimate = float(journal.meta("estimate")["estimated_s"])
-    reduction = api.reduce(session, session / "brdf.h5")
-    truth = truth_table(session)
+    reduction = api.reduce(result.session, session / "brdf.h5")  # the rig and plan as loaded
+    truth = truth_table(result.session)
     plot = plot_slices(reduction.table, truth, session / "brdf-slices.png",
                        title=f"gonio demo — {material}")
     table = reduction.table

@@ -115,13 +115,21 @@ def _same(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
 def step_durations(session: str | Path | SessionFolder, *, pending_only: bool = True
                    ) -> dict[int, float]:
     """Predicted rig time (s) of a pre-planned session's journal steps (the steps not done
-    yet by default), from the planner's time model; see :func:`predicted_step_s`."""
+    yet by default), from the planner's time model (see :func:`predicted_step_s`); for a
+    light-stage session, from its sequence's time estimate
+    (:func:`acquisition.lightstage.capture.frame_durations`)."""
+    from acquisition.lightstage.capture import META_KEY, frame_durations
+
     folder = session if isinstance(session, SessionFolder) else SessionFolder(session)
-    planner = folder.planner()
     with folder.journal(readonly=True) as journal:
         records = list(journal.steps())
-    predicted = predicted_step_s(records, planner.time_model, planner.reference_joints(),
-                                 move_s=planner.leg_s)
+        lightstage = journal.meta(META_KEY)
+    if lightstage is not None:
+        predicted = frame_durations(folder, lightstage)
+    else:
+        planner = folder.planner()
+        predicted = predicted_step_s(records, planner.time_model, planner.reference_joints(),
+                                     move_s=planner.leg_s)
     if pending_only:
         done = {r.step for r in records if r.status == "done"}
         predicted = {k: v for k, v in predicted.items() if k not in done}
@@ -243,7 +251,7 @@ def resume(
 ) -> CaptureResult:
     """Continue an interrupted session where it stopped (gonio or light-stage).
 
-    ``on_open`` and ``prompt`` as for :func:`capture` (``on_open``: gonio sessions only).
+    ``on_open`` and ``prompt`` as for :func:`capture`.
     """
     from acquisition.lightstage.reduce import is_lightstage_session
 
@@ -253,7 +261,7 @@ def resume(
         if sim_faults:  # refused: a light stage has no servo bus
             check_sim_faults(SessionFolder(session_dir).rig(), sim_faults)
         return resume_lightstage(session_dir, progress=progress, observers=observers,  # type: ignore[return-value]
-                                 prompt=prompt)
+                                 prompt=prompt, on_open=on_open)
     folder = SessionFolder(session_dir)
     folder.require_writable()
     if sim_faults:
@@ -357,23 +365,26 @@ def scripted_session(
 
 
 def reduce(
-    session_dir: str | Path,
+    session_dir: str | Path | SessionFolder,
     table_path: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Reduction:
     """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5).
 
-    Nothing is written into the session but the default table: a session on read-only media
-    reduces to a writable ``table_path``. An output that would overwrite the session's own
-    files, or an existing file that is not a gonio table, is refused before reducing.
+    ``session_dir`` is the folder, or a run's :class:`SessionFolder` (its rig and plan are
+    used as loaded). Nothing is written into the session but the default table: a session on
+    read-only media reduces to a writable ``table_path``. An output that would overwrite the
+    session's own files, or an existing file that is not a gonio table, is refused before
+    reducing.
     """
     from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
 
-    out = Path(table_path) if table_path else Path(session_dir) / DEFAULT_TABLE
-    check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(session_dir,))
-    if is_lightstage_session(session_dir):
-        result: Reduction = reduce_lightstage_session(session_dir, progress)
+    path = session_dir.path if isinstance(session_dir, SessionFolder) else session_dir
+    out = Path(table_path) if table_path else Path(path) / DEFAULT_TABLE
+    check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(path,))
+    if is_lightstage_session(path):
+        result: Reduction = reduce_lightstage_session(path, progress)
     else:
         result = reduce_session(session_dir, progress)
-    result.table.save_h5(out, inputs=(session_dir,))
+    result.table.save_h5(out, inputs=(path,))
     return result

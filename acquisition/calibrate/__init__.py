@@ -1,6 +1,6 @@
 """Calibration procedures run on the rig (dark, flat, noise, white); the math lives in the
 ``calibration`` package.
 
-May import: ``drivers``, ``calibration``, ``acquisition.config``, ``acquisition.planning``,
-``acquisition.devices``.
+May import: ``acquisition.config``, ``acquisition.planning``, ``acquisition.devices``,
+``acquisition.simworld``, ``acquisition.geometry``, ``calibration``, ``drivers``.
 """

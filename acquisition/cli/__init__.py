@@ -10,6 +10,8 @@ derived from :class:`drivers.errors.GonioError` are printed as one line, never a
 Grammar shared by every command: outputs are ``-o/--out``; ``--json`` prints one JSON object
 on stdout instead of the text report; ``--seed`` is the simulated devices' noise seed;
 ``--sim-fault SPEC`` injects faults into simulated devices.
+
+May import: ``acquisition.api`` (and its own modules), nothing else of gonio's.
 """
 
 from __future__ import annotations

@@ -73,14 +73,16 @@ def _report(args: argparse.Namespace, result: api.CaptureResult) -> int:
 
 
 def eta_from_time_model(bar: StepBar, args: argparse.Namespace, *,
-                        resumed: bool = False) -> api.OnOpen:
-    """``on_open`` hook: the bar's ETA from the planner's per-step predictions, and (the
-    devices are open, nothing has moved yet) the plan's estimate, or for a resumed run what
-    is left of it, unless ``--json``."""
+                        resumed: bool = False, announce: bool = True) -> api.OnOpen:
+    """``on_open`` hook: the bar's ETA from the per-step predictions of
+    :func:`acquisition.api.step_durations` (the planner's time model; a light stage's
+    sequence estimate), and (the devices are open, nothing has moved yet) the plan's
+    estimate, or for a resumed run what is left of it, unless ``--json`` or not
+    ``announce``."""
     def start(folder: api.SessionFolder, _device_time_s: float | None) -> None:
         predicted = api.step_durations(folder)
         bar.start_eta(predicted)
-        if getattr(args, "json", False):
+        if getattr(args, "json", False) or not announce:
             return
         if resumed:
             say(remaining_line(predicted))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from acquisition import api
+from acquisition.cli.capture import eta_from_time_model
 from acquisition.cli.options import add_json, add_out, report
 from acquisition.cli.progress import step_bar
 
@@ -24,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     with step_bar("demo capture") as bar:
         r = api.run_demo(args.out or "demo-output", material=args.material, seed=args.seed,
-                         progress=bar)
+                         progress=bar, on_open=eta_from_time_model(bar, args, announce=False))
     rig = (f", {r.rig_minutes:.1f} min of simulated rig time "
            f"(planner's estimate {r.estimated_minutes:.1f} min)" if r.rig_minutes else "")
     ti, tr, dp = r.peak_pose

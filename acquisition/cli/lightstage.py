@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from acquisition import api
+from acquisition.cli.capture import eta_from_time_model
 from acquisition.cli.operator import operator_output, terminal_prompt
 from acquisition.cli.options import add_json, add_out, add_seed, report
 from acquisition.cli.progress import say, step_bar
@@ -96,14 +97,16 @@ def run_capture(args: argparse.Namespace) -> int:
         result = api.capture_lightstage(args.rig, args.out, sequences=args.sequence,
                                         material=args.material, seed=args.seed,
                                         plan_path=args.plan, calibration=args.calibration,
-                                        progress=bar, prompt=terminal_prompt())
+                                        progress=bar, prompt=terminal_prompt(),
+                                        on_open=eta_from_time_model(bar, args, announce=False))
     return _finish(args, result, estimate)
 
 
 def run_resume(args: argparse.Namespace) -> int:
     with operator_output(), api.sigint_stops_motion(first_message=api.LIGHTS_MESSAGE), \
             step_bar("resume") as bar:
-        result = api.resume_lightstage(args.session, progress=bar, prompt=terminal_prompt())
+        result = api.resume_lightstage(args.session, progress=bar, prompt=terminal_prompt(),
+                                       on_open=eta_from_time_model(bar, args, resumed=True))
     return _finish(args, result)
 
 

@@ -1,4 +1,5 @@
-"""Files other tools read: MERL binaries, CSV and EXR exports of BRDF tables.
+"""Files other tools read: MERL binaries, CSV and EXR exports of BRDF tables, environment maps.
 
-May import: ``drivers.errors``, ``acquisition.geometry``, ``acquisition.tables``.
+May import: ``acquisition.geometry``, ``acquisition.tables``, ``calibration.exr``,
+``drivers.errors``, ``drivers.storage``.
 """

@@ -1,5 +1,5 @@
 """Coordinate geometry shared by every stage: rig kinematics (joints ⇄ θi, θr, Δφ), MERL
 half/difference coordinates, and pose sampling patterns. Pure math.
 
-May import: ``drivers.errors``, numpy. Nothing else of gonio's.
+May import: ``drivers.errors``.
 """

@@ -5,4 +5,9 @@ Modules: :mod:`.config` (dome, DMX wiring and simulation settings from the rig f
 :mod:`.devices` (widgets, lights, camera), :mod:`.sequences` (OLAT and pattern frames as
 data, time estimate), :mod:`.capture` (durable sessions), :mod:`.reduce` (per-LED calibration,
 BRDF table), :mod:`.field` (reflectance field EXRs), :mod:`.relight` and :mod:`.envmap`.
+
+May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.planning``,
+``acquisition.session``, ``acquisition.reduction``, ``acquisition.simworld``,
+``acquisition.devices``, ``acquisition.tables``, ``acquisition.formats``, ``calibration``,
+``drivers``.
 """

@@ -15,18 +15,26 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from acquisition.config.rig import load_rig
 from acquisition.config.stage import StageConfig, stage_config
 from acquisition.devices.rig import OperatorPrompt, require_operator
 from acquisition.lightstage.devices import LightStageDevices, open_lightstage
-from acquisition.lightstage.sequences import LightFrame, TimeEstimate, capture_steps, estimate_s
+from acquisition.lightstage.sequences import (
+    LightFrame,
+    TimeEstimate,
+    capture_steps,
+    estimate_s,
+    frame_times_s,
+)
 from acquisition.planning.planner import Planner
 from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
 from acquisition.session.status import PLANNED_STEPS_META
+from acquisition.session.steps import Step
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
 
@@ -45,6 +53,8 @@ poses = [[0, 0, 0]]
 """
 
 Progress = Callable[[int, int, StepRecord], None]
+OnOpen = Callable[[SessionFolder, float | None], None]
+"""Called once the devices are open: ``(session folder, device time s or None)``."""
 
 
 class LightStageEngine(SessionEngine):
@@ -113,13 +123,15 @@ def capture_lightstage(
     progress: Progress | None = None,
     observers: Sequence[Observer] = (),
     prompt: OperatorPrompt | None = None,
+    on_open: OnOpen | None = None,
 ) -> LightStageResult:
     """Create a session folder at ``out`` and capture the light-stage sequence into it.
 
     ``sequences`` are names of :data:`acquisition.lightstage.sequences.SEQUENCES`; a white
     reference OLAT pass (``white``) and a dark frame (``dark``) come first. On real hardware
     ``prompt`` asks the operator to swap the sample and the white reference (refused before
-    anything is created when there is none).
+    anything is created when there is none). ``on_open(folder, device_time_s)`` is called once
+    the devices are open (e.g. to start a progress ETA from :func:`frame_durations`).
     """
     rig = load_rig(rig_path)
     stage = stage_config(rig)
@@ -141,7 +153,7 @@ def capture_lightstage(
     estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
     folder.write_info(dataclasses.replace(folder.info, estimated_s=estimate.total_s))
     return resume_lightstage(folder.path, progress=progress, observers=observers, stage=stage,
-                             prompt=prompt)
+                             prompt=prompt, on_open=on_open)
 
 
 def resume_lightstage(
@@ -151,9 +163,10 @@ def resume_lightstage(
     observers: Sequence[Observer] = (),
     stage: StageConfig | None = None,
     prompt: OperatorPrompt | None = None,
+    on_open: OnOpen | None = None,
 ) -> LightStageResult:
     """Continue a light-stage session: replay its sequence, skipping the frames done
-    (``prompt``: see :func:`capture_lightstage`)."""
+    (``prompt``, ``on_open``: see :func:`capture_lightstage`)."""
     folder = SessionFolder(session_dir)
     with folder.journal(readonly=True) as journal:
         meta = journal.meta(META_KEY)
@@ -163,8 +176,8 @@ def resume_lightstage(
     folder.require_writable()
     rig = folder.rig()
     stage = stage or stage_config(rig)
-    steps = capture_steps(stage, meta["sequences"], white=meta["white"], dark=meta["dark"])
-    estimate = estimate_s(stage, steps, folder.plan().capture.exposure_s or rig.camera.exposure_s)
+    steps, exposure_s = _sequence(folder, stage, meta)
+    estimate = estimate_s(stage, steps, exposure_s)
     spec = folder.info.material
     material = parse_material(spec) if spec else None
     obs = list(observers)
@@ -176,6 +189,8 @@ def resume_lightstage(
         journal.set_meta(PLANNED_STEPS_META, total)
     with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage,
                          prompt=prompt) as devices:
+        if on_open:
+            on_open(folder, devices.device_time_s())
         engine = LightStageEngine(folder, devices, planner, obs)
         t0 = devices.device_time_s()
         counts = engine.run(steps, total)
@@ -191,6 +206,23 @@ def resume_lightstage(
 
 FIELD_DIR = "field"
 """Sub-folder of a session where the reflectance field is written."""
+
+
+def frame_durations(folder: SessionFolder, meta: dict[str, Any]) -> dict[int, float]:
+    """Predicted rig time (s) of every journal step of the light-stage session ``folder``
+    (``meta``: its journal's :data:`META_KEY` entry), ``{step: s}``: step k is the sequence's
+    k-th frame (:func:`~acquisition.lightstage.sequences.frame_times_s`, which add up to the
+    session's :class:`TimeEstimate`)."""
+    stage = stage_config(folder.rig())
+    steps, exposure_s = _sequence(folder, stage, meta)
+    return dict(enumerate(frame_times_s(stage, steps, exposure_s)))
+
+
+def _sequence(folder: SessionFolder, stage: StageConfig, meta: dict[str, Any]
+              ) -> tuple[list[Step], float]:
+    """The session's steps (as :func:`capture_lightstage` made them) and default exposure (s)."""
+    steps = capture_steps(stage, meta["sequences"], white=meta["white"], dark=meta["dark"])
+    return steps, folder.plan().capture.exposure_s or folder.rig().camera.exposure_s
 
 
 def session_sequences(session_dir: str | Path) -> list[str]:

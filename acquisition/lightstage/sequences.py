@@ -159,20 +159,36 @@ def estimate_s(stage: StageConfig, steps: Iterable[Step], exposure_s: float) -> 
     """Rig time of ``steps``: each light change costs one output period (the frame in
     progress) + one frame + USB margin + settle before the exposure may start
     (:meth:`drivers.dmx.DmxWidget.ready_at`); duty-cycle cool-downs are not included."""
+    frames = changes = 0
+    exposure = 0.0
+    for changed, t in _frame_costs(steps, exposure_s):
+        frames += 1
+        changes += changed
+        exposure += t
+    return TimeEstimate(frames, changes, changes * light_change_s(stage), exposure)
+
+
+def frame_times_s(stage: StageConfig, steps: Iterable[Step], exposure_s: float) -> list[float]:
+    """Predicted rig time (s) of each :class:`LightFrame` of ``steps``, in order: its light
+    change, if it has one, and its exposure (they add up to :func:`estimate_s`)."""
+    change_s = light_change_s(stage)
+    return [change_s * changed + t for changed, t in _frame_costs(steps, exposure_s)]
+
+
+def light_change_s(stage: StageConfig) -> float:
+    """Rig time of one light change before an exposure may start (see :func:`estimate_s`)."""
     n_channels = max(max(f.addresses.values()) for f in stage.fixtures)
     wire = frame_time_s(max(n_channels, 24), break_units=DEFAULT_BREAK_UNITS,
                         mab_units=DEFAULT_MAB_UNITS)
     period = max(wire, 1.0 / stage.refresh_rate_hz)
-    per_change = period + wire + USB_MARGIN_S + stage.settle_s
-    frames = changes = 0
-    exposure = 0.0
+    return period + wire + USB_MARGIN_S + stage.settle_s
+
+
+def _frame_costs(steps: Iterable[Step], exposure_s: float) -> Iterator[tuple[bool, float]]:
+    """``(lights change, exposure s)`` of each :class:`LightFrame` of ``steps``."""
     last: tuple[float, ...] | None = None
     for s in steps:
         if not isinstance(s, LightFrame):
             continue
-        frames += 1
-        exposure += s.exposure_s or exposure_s
-        if s.levels != last:
-            changes += 1
-            last = s.levels
-    return TimeEstimate(frames, changes, changes * per_change, exposure)
+        yield s.levels != last, s.exposure_s or exposure_s
+        last = s.levels

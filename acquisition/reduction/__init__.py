@@ -1,7 +1,6 @@
 """Reduction of a session's frames into BRDF tables: point (ROI) and per-pixel reduction,
-and the imaging geometry of image-based rigs.
+the imaging geometry of image-based rigs, and the live estimate.
 
-May import: ``drivers.errors``, ``calibration``, ``acquisition.geometry``,
-``acquisition.config``, ``acquisition.planning``, ``acquisition.session``,
-``acquisition.tables``, ``acquisition.formats``.
+May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
+``acquisition.tables``, ``acquisition.formats``, ``calibration``, ``drivers.errors``.
 """

@@ -234,7 +234,7 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
 
 
 def reduce_image_session(
-    session_dir: str | Path,
+    session_dir: str | Path | SessionFolder,
     progress: Callable[[int, int], None] | None = None,
     *,
     merl_path: str | Path | None = None,
@@ -247,7 +247,8 @@ def reduce_image_session(
     Parameters
     ----------
     session_dir
-        The session folder (its rig file must have ``[sample] image_based = true``).
+        The session folder (its rig file must have ``[sample] image_based = true``), or its
+        opened :class:`SessionFolder`.
     progress
         ``progress(done, total)`` after each frame.
     merl_path
@@ -260,7 +261,7 @@ def reduce_image_session(
         Calibration bundle folder to apply; default the session's own copy, if any.
     """
     t0 = time.monotonic()
-    folder = SessionFolder(session_dir)
+    folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
     rig, plan = folder.rig(), folder.plan()
     cal = find_bundle(folder, bundle)
     with folder.journal(readonly=True) as journal:

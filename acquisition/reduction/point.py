@@ -174,7 +174,7 @@ def find_bundle(folder: SessionFolder, bundle: str | Path | None) -> Calibration
 
 
 def reduce_session(
-    session_dir: str | Path,
+    session_dir: str | Path | SessionFolder,
     progress: Callable[[int, int], None] | None = None,
     *,
     bundle: str | Path | None = None,
@@ -184,6 +184,9 @@ def reduce_session(
 
     Parameters
     ----------
+    session_dir:
+        The session folder, or its opened :class:`SessionFolder` (whose rig and plan are
+        used as loaded).
     bundle:
         Calibration bundle folder to apply; default the session's own copy, if any.
     reference_axis:
@@ -195,13 +198,13 @@ def reduce_session(
     if reference_axis not in ("step", "time"):
         raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
     t0 = time.monotonic()
-    folder = SessionFolder(session_dir)
+    folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
     cal = find_bundle(folder, bundle)
     rig, plan = folder.rig(), folder.plan()
     if rig.sample.image_based:
         from acquisition.reduction.image import reduce_image_session  # imports reduce: load lazily
 
-        return reduce_image_session(folder.path, progress, bundle=bundle)
+        return reduce_image_session(folder, progress, bundle=bundle)
     kin = rig.kinematics()
     records, complete = _done_records(folder)
     frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),

@@ -19,9 +19,11 @@ from acquisition.tables import IsotropicTable
 from simulators.materials import Material
 
 
-def truth_table(session_dir: str | Path, material: Material | None = None) -> IsotropicTable:
-    """The session's material evaluated at every captured pose, binned like the reduction."""
-    folder = SessionFolder(session_dir)
+def truth_table(session_dir: str | Path | SessionFolder, material: Material | None = None
+                ) -> IsotropicTable:
+    """The session's material evaluated at every captured pose, binned like the reduction
+    (``session_dir``: the folder, or its opened :class:`SessionFolder`)."""
+    folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
     if material is None:
         if not folder.info.material:
             raise ValueError(f"{folder.path} records no simulated material")

@@ -1,4 +1,8 @@
-"""BRDF tables: streaming binning into isotropic (θi, θr, Δφ) and MERL half/difference grids."""
+"""BRDF tables: streaming binning into isotropic (θi, θr, Δφ) and MERL half/difference grids,
+binning kernels, HDF5 files.
+
+May import: ``acquisition.geometry``, ``drivers.errors``, ``drivers.storage``.
+"""
 
 from acquisition.tables.accumulator import BinAccumulator
 from acquisition.tables.angles import fold_delta_phi, wrap_delta_phi

@@ -53,6 +53,11 @@ Ours = Callable[[Path], bool] | bool | None
 _UMASK_LOCK = threading.Lock()
 
 
+class Discard(Exception):
+    """Raise inside :func:`atomic_output`, or from its ``verify``, to drop the temporary file
+    without an error (the caller catches it: a frame to retake, say)."""
+
+
 class WriteFailed(OSError):
     """A library reported a failed write without an errno (OpenImageIO, ...): raise it inside
     :func:`atomic_output` and the folder is examined for the cause."""
@@ -304,6 +309,8 @@ def _commit(tmp: Path, final: Path, verify: Callable[[Path], object] | None,
     if verify is not None:
         try:
             verify(tmp)
+        except Discard:
+            raise
         except Exception as exc:
             raise _Unverified(f"the written file does not read back ({one_line(str(exc), 120)})") from exc
     with suppress(PermissionError, NotImplementedError):
@@ -321,7 +328,8 @@ def atomic_output(path: str | os.PathLike[str], *, what: str,
     """Yield a temporary path beside ``path`` to write ``what`` into; on success verify, fsync
     and rename it to ``path`` (see the module docstring).
 
-    ``verify(tmp)`` re-opens the written file and raises if it is not whole. ``ours``,
+    ``verify(tmp)`` re-opens the written file and raises if it is not whole (or raises
+    :class:`Discard` to drop it quietly). ``ours``,
     ``inputs`` and ``own_session`` are :func:`check_output`'s. ``retry`` is the fix's second
     half (default " or write elsewhere (-o PATH)"; a session: ", then `gonio resume S`").
     GonioErrors other than StorageError raised inside pass through unchanged (after cleanup).

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +117,79 @@ def test_bad_inputs_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFi
 
     with pytest.raises(ConfigError, match="unknown export format"):
         export_table(tmp_path / "none.h5", "png", None)
+
+
+# ------------------------------------------------------------------------------ MERL counts
+def _merl_centre_angles() -> tuple[np.ndarray, np.ndarray]:
+    """θi, θr (degrees) of every MERL bin centre, from scratch: the half vector at θh (φh = 0),
+    the difference vector (θd, φd) rotated onto it, the outgoing one its mirror about it."""
+    th = np.radians(90.0 * ((np.arange(90) + 0.5) / 90) ** 2)  # θh: square-root spacing
+    td = np.radians(np.arange(90) + 0.5)
+    pd = np.radians(np.arange(180) + 0.5)
+    th, td, pd = np.meshgrid(th, td, pd, indexing="ij")
+    dx, dz = np.sin(td) * np.cos(pd), np.cos(td)
+    wi_x, wi_z = dx * np.cos(th) + dz * np.sin(th), -dx * np.sin(th) + dz * np.cos(th)
+    h_x, h_z = np.sin(th), np.cos(th)
+    wo_z = 2 * (wi_x * h_x + wi_z * h_z) * h_z - wi_z
+    return np.degrees(np.arccos(np.clip(wi_z, -1, 1))), np.degrees(np.arccos(np.clip(wo_z, -1, 1)))
+
+
+def _stored_bins_with_a_value(path: Path) -> int:
+    """MERL bins of a file holding a value in every channel, read from its bytes."""
+    dims = np.fromfile(path, dtype="<i4", count=3)
+    assert list(dims) == [90, 90, 180]
+    stored = np.fromfile(path, dtype="<f8", offset=12).reshape(3, -1)
+    return int((stored >= 0).all(axis=0).sum())
+
+
+def _export(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    capsys.readouterr()
+    assert main(argv) == 0
+    return capsys.readouterr().out
+
+
+def test_merl_export_counts_measured_and_nearest_bin_filled_bins(
+        iso_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import h5py
+
+    with h5py.File(iso_path, "r") as f:
+        measured = int((f["count"][()] > 0).sum())
+    assert measured == 12 * 18 * 36  # θi bins centred ≤ 60° × every θr × every Δφ
+    # A MERL bin centre is filled when it is above the horizon both ways and either order of
+    # (θi, θr) falls in a measured bin (θi < 60°).
+    ti, tr = _merl_centre_angles()
+    filled = int(((ti < 90) & (tr < 90) & (np.minimum(ti, tr) < 60)).sum())
+
+    text = tmp_path / "text.binary"
+    line = _export(["export", str(iso_path), "--format", "merl", "-o", str(text)], capsys).strip()
+    numbers = re.fullmatch(rf"{re.escape(str(text))}: ([\d,]+) measured isotropic bins, copied by "
+                           r"nearest bin onto ([\d,]+) of ([\d,]+) MERL bins \(.*\)", line)
+    assert numbers is not None, line
+    got = [int(n.replace(",", "")) for n in numbers.groups()]
+    assert got == [measured, filled, 90 * 90 * 180]
+    assert _stored_bins_with_a_value(text) == filled
+
+    js = tmp_path / "json.binary"
+    report = json.loads(_export(["export", str(iso_path), "--format", "merl", "-o", str(js),
+                                 "--json"], capsys))
+    assert report == {"path": str(js), "format": "merl", "count": filled,
+                      "measured_bins": measured, "filled_bins": filled}
+    assert js.read_bytes() == text.read_bytes()
+
+
+def test_merl_input_counts_its_measured_bins_and_fills_none(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rng = np.random.default_rng(2)
+    values = rng.uniform(0, 0.5, (MERL_BINS, 3))
+    values[rng.random(MERL_BINS) < 0.25] = np.nan
+    src = tmp_path / "src.binary"
+    write_merl(src, values.reshape(90, 90, 180, 3))
+    measured = _stored_bins_with_a_value(src)
+    assert measured == int(np.isfinite(values).all(axis=1).sum())
+
+    out = tmp_path / "out.binary"
+    line = _export(["export", str(src), "--format", "merl", "-o", str(out)], capsys).strip()
+    assert line == f"{out}: {measured} measured bins"
+    report = json.loads(_export(["export", str(src), "--format", "merl", "-o", str(out), "--json"],
+                                capsys))
+    assert (report["measured_bins"], report["filled_bins"], report["count"]) == (measured, 0, measured)

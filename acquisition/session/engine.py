@@ -1,6 +1,7 @@
 """The session engine: runs a plan of step records (:mod:`acquisition.session.steps`) on open
 devices against the journal, skipping what is done, so a run stopped by Ctrl-C, a crash or a
-power cut continues exactly where it stopped. Every frame is written atomically and hashed.
+power cut continues exactly where it stopped. Every frame is written atomically, re-opened
+(:mod:`acquisition.session.frames`) and hashed.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner
 from acquisition.session.folder import SessionFolder, frame_name, reference_geometry
+from acquisition.session.frames import check_raw_frame
 from acquisition.session.hdr import HDR_DONE_META, HDR_NOTE, camera_noise_model, hdr_group
 from acquisition.session.journal import Journal, StepRecord
 from acquisition.session.steps import (
@@ -39,15 +41,10 @@ from drivers.errors import (
     SafetyStop,
     SessionError,
 )
-from drivers.storage import atomic_output, is_partial, sha256_file
+from drivers.storage import Discard, atomic_output, is_partial, sha256_file
 
 if TYPE_CHECKING:
     from acquisition.session.observers import Observer
-
-
-
-
-
 
 
 class CaptureDevices(Protocol):
@@ -74,24 +71,6 @@ class CaptureDevices(Protocol):
     def host_work(self) -> AbstractContextManager[None]:
         """Context for host-only work (checks, journal, hashing): a simulated rig's clock
         stops inside it, since host time is not rig time scaled up."""
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 
 
 ProgressCallback = Callable[[int, int, StepRecord], None]
@@ -491,15 +470,14 @@ class SessionEngine:
         for attempt in range(retries + 1):
             try:
                 with atomic_output(final, what="frame", ours=True, own_session=True,
+                                   verify=self._frame_verifier(attempt < retries),
                                    retry=f", then `gonio resume {self.folder.path}`") as tmp:
                     self.devices.capture(tmp, exposure_s, iso, seed_base + attempt)
-                    with self.devices.host_work():
-                        clipped = attempt < retries and self.saturated(tmp)
-                    if clipped:
-                        raise _Retake()
             except _Retake:
                 exposure_s /= 4.0
                 continue
+            except _Failed as failed:
+                raise failed.error from None
             break
         with self.devices.host_work():
             self._journal.mark_done(
@@ -508,6 +486,22 @@ class SessionEngine:
             )
             self._completed(rec.step, final)
         return final
+
+    def _frame_verifier(self, retake_clipped: bool) -> Callable[[Path], None]:
+        """The frame writer's ``verify``: the frame re-opens whole (:func:`check_raw_frame`,
+        no pixel decoded), then, if ``retake_clipped``, a clipped ROI drops it for a retake."""
+        def verify(tmp: Path) -> None:
+            with self.devices.host_work():
+                check_raw_frame(tmp)
+                if not retake_clipped:
+                    return
+                try:
+                    clipped = self.saturated(tmp)
+                except GonioError as exc:  # its own one line, not the writer's "does not read back"
+                    raise _Failed(exc) from exc
+                if clipped:
+                    raise _Retake()
+        return verify
 
     def _completed(self, step: int, frame: Path | None) -> None:
         assert self._journal is not None
@@ -523,11 +517,13 @@ def _same_joints(a: Mapping[str, float], b: Mapping[str, float]) -> bool:
     return a.keys() == b.keys() and all(math.isclose(a[k], b[k], abs_tol=1e-9) for k in a)
 
 
-
-
-class _Retake(Exception):
+class _Retake(Discard):
     """Internal: discard the frame just written and expose again."""
 
 
+class _Failed(Discard):
+    """Internal: the clip test failed with ``error``; drop the frame and raise it."""
 
-
+    def __init__(self, error: GonioError) -> None:
+        super().__init__(str(error))
+        self.error = error

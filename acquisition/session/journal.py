@@ -6,9 +6,14 @@ timestamps in one transaction, so after a crash every step is either done (with 
 hash can be checked) or still to do.
 
 A writer checkpoints the write-ahead log into ``journal.sqlite`` when it closes (a finished or
-stopped run), so a copied folder is complete. A reader (``readonly=True``) never writes: a
-checkpointed journal is opened ``immutable`` (no ``-wal``/``-shm`` files are made, read-only
-media work); one with a live write-ahead log (a run in progress) is opened ``mode=ro``.
+stopped run), so a copied folder is complete. A reader (``readonly=True``) never changes the
+session: it opens the journal ``mode=ro``, so it sees what a writer commits meanwhile; SQLite
+then makes ``-wal``/``-shm`` side files, which the reader removes when it closes if it made
+them (through a closing connection, as SQLite removes them, only when no other connection is
+open). ``immutable`` (no side files, no locks) is used only where the side files cannot be
+made: a folder on read-only media or not writable by this user, a full disk, or a ``-shm``
+without its ``-wal`` (a folder copied without its write-ahead log, which ``gonio verify``
+reports).
 """
 
 from __future__ import annotations
@@ -110,13 +115,15 @@ class Journal:
         self.path = Path(path)
         self.readonly = readonly
         self.retry = retry if retry is not None else f", then `gonio resume {self.path.parent}`"
-        sidecars = [self.path.with_name(self.path.name + s) for s in ("-wal", "-shm")]
-        fresh = [p for p in sidecars if not p.exists()]
+        fresh = [p for p in self._sidecars if not p.exists()]
+        self._made_sidecars = False
         try:
             self._open(readonly)
         except (SessionError, StorageError):
             with contextlib.suppress(AttributeError, sqlite3.Error):
                 self._db.close()
+            if self._made_sidecars:
+                self._remove_made_sidecars()
             for p in fresh:  # empty side files SQLite made before it failed
                 with contextlib.suppress(OSError):
                     if p.stat().st_size == 0:
@@ -144,19 +151,68 @@ class Journal:
         except sqlite3.DatabaseError as exc:
             raise SessionError(f"journal {self.path} is unreadable ({exc}): the session is damaged") from None
 
+    @property
+    def _sidecars(self) -> tuple[Path, Path]:
+        return (self.path.with_name(self.path.name + "-wal"),
+                self.path.with_name(self.path.name + "-shm"))
+
     def _open_reader(self) -> sqlite3.Connection:
-        """A connection that never writes (see the module docstring)."""
+        """A connection that never changes the session (see the module docstring)."""
         uri = self.path.resolve().as_uri()
-        wal = self.path.with_name(self.path.name + "-wal")
+        wal, shm = self._sidecars
         live = wal.is_file() and wal.stat().st_size > 0
-        if live and write_blocker(self.path.parent) is not None \
-                and not self.path.with_name(self.path.name + "-shm").is_file():
+        read_only_folder = write_blocker(self.path.parent) is not None
+        blocked = read_only_folder or not os.access(self.path, os.W_OK)  # could not clean up
+        if live and read_only_folder and not shm.is_file():
             raise SessionError(
                 f"journal {self.path} has a write-ahead log that was never checkpointed (the run "
                 "did not end cleanly) and the folder is read-only: copy the session to a "
                 "writable disk to read it")
-        return sqlite3.connect(f"{uri}?mode=ro" + ("" if live else "&immutable=1"), uri=True,
-                               isolation_level=None)
+        if not live and (blocked or (shm.exists() and not wal.exists())):
+            return self._connect(f"{uri}?mode=ro&immutable=1")
+        fresh = not wal.exists() and not shm.exists()
+        db = self._connect(f"{uri}?mode=ro")
+        if not fresh:
+            return db
+        try:
+            db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+        except sqlite3.OperationalError:
+            db.close()
+            if diagnose(self.path.parent) != errno.ENOSPC:
+                raise
+            # No room for the side files: nothing can be writing here either.
+            self._unlink_fresh_sidecars()
+            return self._connect(f"{uri}?mode=ro&immutable=1")
+        self._made_sidecars = True
+        return db
+
+    @staticmethod
+    def _connect(uri: str) -> sqlite3.Connection:
+        return sqlite3.connect(uri, uri=True, isolation_level=None)
+
+    def _unlink_fresh_sidecars(self) -> None:
+        """Remove the side files a failed reader made (the WAL still empty: nothing in use)."""
+        wal, shm = self._sidecars
+        if wal.exists() and wal.stat().st_size > 0:
+            return
+        for p in (wal, shm):
+            with contextlib.suppress(OSError):
+                p.unlink()
+
+    def _remove_made_sidecars(self) -> None:
+        """Remove the ``-wal``/``-shm`` files this reader's open made, the way SQLite does: a
+        read-write connection that closes last deletes them (none open elsewhere: it leaves
+        them to the others). Nothing else changes: the log is empty, so there is nothing to
+        checkpoint."""
+        wal, _ = self._sidecars
+        if not wal.exists() or wal.stat().st_size > 0:  # a writer came and went, or is writing
+            return
+        with contextlib.suppress(sqlite3.Error):
+            db = self._connect(f"{self.path.resolve().as_uri()}?mode=rw")
+            try:
+                db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+            finally:
+                db.close()
 
     def _storage_error(self, exc: sqlite3.Error, code: int) -> StorageError:
         return storage_error(OSError(code, str(exc)), self.path, "the journal", self.retry)
@@ -171,6 +227,9 @@ class Journal:
             with contextlib.suppress(sqlite3.Error):
                 self.checkpoint()
         self._db.close()
+        if self._made_sidecars:
+            self._made_sidecars = False
+            self._remove_made_sidecars()
 
     def __enter__(self) -> Journal:
         return self

@@ -150,7 +150,8 @@ def test_master_dark_removes_the_dark_current_bias(
     rig_sim_text: str, calibrated: dict[str, Path]
 ) -> None:
     # A warm sensor: 3000 e⁻/s of dark current adds ~15 DN at 10 ms, which the stated black
-    # level misses; a dark-only bundle fixes it (no noise model: no predicted variance).
+    # level misses; a dark-only bundle fixes it (it has no noise model: the simulated camera's
+    # sensor model predicts the variance).
     root = calibrated["root"] / "warm"
     root.mkdir()
     rig = root / "rig.toml"
@@ -159,8 +160,10 @@ def test_master_dark_removes_the_dark_current_bias(
     api.capture(rig, calibrated["plan"], root / "s", material="lambert:albedo=0.18", seed=2)
     plain = reduce_session(root / "s")
     fixed = reduce_session(root / "s", bundle=root / "bundle")
-    assert plain.bundle is None and fixed.predicted_variance is None
+    assert plain.bundle is None and fixed.bundle is not None
+    assert fixed.table.provenance["noise_model"] == "sensor model"
     measured = fixed.table.count > 0
+    assert np.all(np.isfinite(fixed.predicted_variance[measured]))
 
     def median_error(reduction) -> float:
         return float(np.median(np.abs(reduction.table.mean[measured] / GREY - 1)))
@@ -197,3 +200,25 @@ def test_image_based_reduction_applies_the_bundle(tmp_path: Path) -> None:
     assert fixed.table.provenance["calibration_bundle"] == str(bundle.resolve())
     assert median_error(plain) > 0.03
     assert median_error(fixed) <= 0.01
+
+
+def test_reduce_applies_a_bundle_made_after_the_capture(
+        calibrated: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    """A session captured without calibration, reduced with `gonio reduce --calibration`: the
+    bundle's flat field and noise model apply (the realistic sensor's vignetting no longer
+    biases the grey card, and the budget's noise comes from the bundle)."""
+    out = calibrated["root"] / "late"
+    api.capture(calibrated["rig"], calibrated["plan"], out, material="lambert:albedo=0.18",
+                seed=6)
+    table = out / "late.h5"
+    assert main(["reduce", str(out), "-o", str(table), "--calibration",
+                 str(calibrated["bundle"]), "--json"]) == 0
+    import json
+
+    report = json.loads(capsys.readouterr().out)
+    assert report["noise_model"] == "calibration bundle"
+    loaded = api.open_table(table)
+    assert loaded.provenance["calibration_bundle"] == str(calibrated["bundle"].resolve())
+    measured = loaded.count > 0
+    assert np.median(np.abs(loaded.mean[measured] / GREY - 1)) <= 0.01
+    assert np.all(np.isfinite(loaded.std_error[measured]))

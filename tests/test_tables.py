@@ -196,13 +196,17 @@ def test_h5_layout_attributes_dtypes_and_shapes(tmp_path):
     with h5py.File(path, "r") as f:
         assert set(f.keys()) == {
             "theta_i_edges", "theta_r_edges", "delta_phi_edges", "mean", "variance", "count",
+            "std_error", "mean_theta_i_deg", "mean_theta_r_deg", "mean_delta_phi_deg",
+            "uncertainty",
         }
-        assert dict(f.attrs) == {
+        attrs = dict(f.attrs)
+        assert np.isnan(attrs.pop("scatter_ratio")) and attrs.pop("scatter_bins") == 0
+        assert attrs == {
             "units": "1/sr",
             "quantity": "brdf",
             "channels": "R,G,B",
             "format": "gonio-isotropic-brdf",
-            "version": 1,
+            "version": 2,
             "provenance": f.attrs["provenance"],
         }
         assert json.loads(f.attrs["provenance"]) == {"material": "ggx:albedo=0.2", "frames": 12}
@@ -247,7 +251,7 @@ def test_h5_round_trip_and_continue_accumulating(tmp_path):
 
 @pytest.mark.parametrize(
     ("attr", "value", "match"),
-    [("format", "something-else", "format is 'something-else'"), ("version", 2, "version 2")],
+    [("format", "something-else", "format is 'something-else'"), ("version", 3, "version 3")],
 )
 def test_load_wrong_format_or_version_is_config_error(tmp_path, attr, value, match):
     path = tmp_path / "t.h5"

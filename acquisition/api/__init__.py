@@ -24,6 +24,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "ScriptedSession", "scripted_session", "reduce",
     ),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
+    "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty"),
+    "acquisition.analysis.fit": ("FitResult",),
+    "acquisition.analysis.models": ("MODEL_NAMES", "make_model"),
     "acquisition.simworld.materials": ("DEFAULT_MATERIAL",),
     "acquisition.geometry.kinematics": ("Pose",),
     "acquisition.planning.planner": ("Planner", "Sweep", "Rejection", "Reason"),
@@ -82,7 +85,10 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # what type checkers and IDEs see
+    from acquisition.analysis.fit import FitResult
+    from acquisition.analysis.models import MODEL_NAMES, make_model
     from acquisition.analysis.plots import plot_slices, plot_sweep
+    from acquisition.api.analysis import fit, median_relative_uncertainty, open_table
     from acquisition.api.demo import DemoResult, run_demo
     from acquisition.api.sessions import (
         CaptureResult,

@@ -36,7 +36,7 @@ from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from acquisition.simworld.servos import check_sim_faults
 from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
-from drivers.errors import SessionError, StorageError
+from drivers.errors import ConfigError, SessionError, StorageError
 from drivers.storage import check_output
 
 DEFAULT_TABLE = "brdf.h5"
@@ -368,8 +368,13 @@ def reduce(
     session_dir: str | Path | SessionFolder,
     table_path: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    calibration: str | Path | None = None,
 ) -> Reduction:
     """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5).
+
+    ``calibration``: a calibration bundle to apply (made after the capture, say) instead of
+    the session's own copy.
 
     ``session_dir`` is the folder, or a run's :class:`SessionFolder` (its rig and plan are
     used as loaded). Nothing is written into the session but the default table: a session on
@@ -383,8 +388,11 @@ def reduce(
     out = Path(table_path) if table_path else Path(path) / DEFAULT_TABLE
     check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(path,))
     if is_lightstage_session(path):
+        if calibration is not None:
+            raise ConfigError(f"{path} is a light-stage session, calibrated by its own OLAT white "
+                              "frames: drop --calibration")
         result: Reduction = reduce_lightstage_session(path, progress)
     else:
-        result = reduce_session(session_dir, progress)
+        result = reduce_session(session_dir, progress, bundle=calibration)
     result.table.save_h5(out, inputs=(path,))
     return result

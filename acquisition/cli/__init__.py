@@ -35,6 +35,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "acquisition.cli.inspect",
     "acquisition.cli.calibrate",
     "acquisition.cli.lightstage",
+    "acquisition.cli.analyze",
 )
 """Modules that register sub-commands, in the order ``gonio --help`` lists them."""
 

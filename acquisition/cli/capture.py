@@ -39,6 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reduce", help=COMMANDS["reduce"])
     p.add_argument("session", help="session folder")
     add_out(p, "table file (default: SESSION/brdf.h5)", aliases=("--output",))
+    p.add_argument("--calibration", metavar="BUNDLE",
+                   help="calibration bundle to apply (default: the session's own copy)")
     add_json(p)
     p.set_defaults(func=run_reduce)
 
@@ -116,11 +118,23 @@ def run_resume(args: argparse.Namespace) -> int:
 
 def run_reduce(args: argparse.Namespace) -> int:
     with step_bar("reduce", unit="frame") as bar:
-        result = api.reduce(args.session, args.out, progress=lambda d, t: bar(d, t))
+        result = api.reduce(args.session, args.out, progress=lambda d, t: bar(d, t),
+                            calibration=args.calibration)
     out = Path(args.out or Path(args.session) / "brdf.h5")
-    measured = int((result.table.count > 0).sum())
+    table = result.table
+    measured = int((table.count > 0).sum())
+    rel = api.median_relative_uncertainty(table)
+    ratio, repeats = table.scatter
+    lines = [f"{out}: {result.frames} frames → {measured} measured bins; "
+             f"white reference drift {result.drift_pct:.2f} %"]
+    if table.tracks_uncertainty:
+        lines.append(f"uncertainty: median {rel:.3g} % per bin (noise model: "
+                     f"{table.provenance.get('noise_model', 'unknown')})"
+                     + (f"; repeats scatter {ratio:.2f}× the prediction over {repeats} bins"
+                        if repeats else ""))
     report(args, {"table": out, "frames": result.frames, "measured_bins": measured,
-                  "references": result.references, "drift_pct": result.drift_pct},
-           [f"{out}: {result.frames} frames → {measured} measured bins; "
-            f"white reference drift {result.drift_pct:.2f} %"])
+                  "references": result.references, "drift_pct": result.drift_pct,
+                  "median_rel_uncertainty_pct": rel,
+                  "noise_model": table.provenance.get("noise_model"),
+                  "scatter_ratio": ratio, "scatter_bins": repeats}, lines)
     return 0

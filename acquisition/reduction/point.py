@@ -11,10 +11,20 @@ because the pixel value is proportional to radiance L = f · E and the point lig
 irradiance is E = I cos θi / r² at both geometries.
 
 With a calibration bundle (``bundle=`` or the one copied into the session folder), every
-frame is linearized with the bundle's master dark for its exposure and ISO, flat field,
-bad-pixel map and noise model; the noise model's variance of each ROI mean (and of the
-interpolated reference) is propagated to every sample, and :attr:`Reduction.predicted_variance`
-holds the predicted variance of each bin's mean.
+frame is linearized with the bundle's master dark for its exposure and ISO, flat field and
+bad-pixel map.
+
+Uncertainty (the table's budget, :mod:`acquisition.tables.uncertainty`). Each frame's ROI mean
+gets its variance from a noise model — the bundle's at the frame's ISO, else the simulated
+camera's sensor model, else (a real camera without a measured model) the scatter over the
+ROI — and every sample carries two terms into its bin:
+
+* ``noise`` (independent): f² · var S / S², the sample frame's own noise;
+* ``white_reference`` (correlated: one reference normalises many samples):
+  f · √(var S_ref) / S_ref, the noise of the interpolated white reference.
+
+Each bin's ``std_error`` is their root sum of squares; :attr:`Reduction.predicted_variance`
+is its square. Each bin also keeps the mean read-back (θi, θr, Δφ) of its samples.
 
 An HDR session's bracket (journal rows noted ``hdr=<first step>:<k>``) is one sample: its
 frames are linearized with variances (the bundle's noise model, else a simulated camera's
@@ -35,6 +45,7 @@ import numpy as np
 
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
+from acquisition.config.sensor import nominal_noise_model
 from acquisition.geometry.kinematics import Pose
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.session.engine import POSE, REFERENCE
@@ -44,7 +55,7 @@ from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.hdr import merge
-from calibration.linearize import LinearImage, linearize, roi_mean
+from calibration.linearize import LinearImage, NoiseModel, linearize, roi_mean
 from calibration.raw import load_raw
 from calibration.signal import roi_signal
 from drivers.errors import SessionError
@@ -73,8 +84,8 @@ class Reduction:
     """Peak-to-peak change of the white reference over the session, % of its mean."""
     seconds: float
     predicted_variance: np.ndarray | None = None
-    """Noise-model variance of each bin's mean (table shape × 3, sr⁻²; NaN for empty bins),
-    when a calibration bundle with a noise model was used; else None."""
+    """Predicted variance of each bin's mean (table shape × 3, sr⁻²; NaN for empty bins): the
+    square of the table's ``std_error`` (every term of its budget)."""
     bundle: Path | None = None
     """The calibration bundle applied, if any."""
 
@@ -114,15 +125,46 @@ def frame_signal(
     return FrameSignal(step, mean, var, n)
 
 
+NOISE_SOURCES = ("calibration bundle", "sensor model", "ROI scatter")
+"""Where a frame's variance comes from, in order of preference (:func:`noise_source`)."""
+
+
+def noise_model(rig: RigConfig, iso: float, bundle: CalibrationBundle | None
+                ) -> NoiseModel | None:
+    """The noise model of a frame at ``iso``: the bundle's, else the simulated camera's
+    nominal sensor model, else None (a real camera without a measured model)."""
+    model = bundle.noise_for(iso) if bundle is not None else None
+    if model is None and rig.camera.driver == "simulated":
+        model = nominal_noise_model(rig, iso)
+    return model
+
+
+def noise_source(rig: RigConfig, iso: float, bundle: CalibrationBundle | None) -> str:
+    """Which of :data:`NOISE_SOURCES` gives the variance of frames at ``iso``."""
+    if bundle is not None and bundle.noise_for(iso) is not None:
+        return NOISE_SOURCES[0]
+    return NOISE_SOURCES[1] if rig.camera.driver == "simulated" else NOISE_SOURCES[2]
+
+
+def sample_signal(path: Path, rig: RigConfig, step: int,
+                  bundle: CalibrationBundle | None = None) -> FrameSignal:
+    """The ROI mean (DN/s) of a frame and its variance from :func:`noise_model` (the ROI
+    scatter where no model is known), with the bundle's corrections."""
+    image = linearize_with_variance(path, rig, bundle)
+    x0, y0, x1, y1 = rig.camera.roi
+    mean, var, n = roi_mean(image, (x0, y0, x1 - x0, y1 - y0))
+    return FrameSignal(step, np.asarray(mean, float), np.asarray(var, float), int(n))
+
+
 def linearize_with_variance(path: Path, rig: RigConfig,
                             bundle: CalibrationBundle | None = None) -> LinearImage:
-    """Linearize a frame with the bundle's corrections and a variance per superpixel (the
-    bundle's noise model, else :func:`acquisition.session.hdr.camera_noise_model`)."""
+    """Linearize a frame with the bundle's corrections and a variance per superpixel from
+    :func:`noise_model` (no variance where none is known: a real camera, no measured model)."""
     frame = load_raw(path)
     iso = float(frame.iso or rig.camera.iso)
     if bundle is not None and bundle.noise_for(iso) is not None:
         return bundle.linearize(frame)
-    noise = camera_noise_model(rig, iso, None)
+    noise = noise_model(rig, iso, None)
     if bundle is None:
         return linearize(frame, noise=noise)
     dark = bundle.dark_for(frame.exposure_s, iso) if frame.exposure_s else None
@@ -213,21 +255,21 @@ def reduce_session(
     white = _WhiteScale.of(refs, rig)
     drift = _drift_pct(refs)
     table = _new_table(folder, rig, plan, drift, cal)
-    sums = _NoiseSums.zeros(table) if _noise_model_covers(cal, records) else None
+    table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+    table.track_uncertainty(UNCERTAINTY_TERMS[0], UNCERTAINTY_TERMS[1])
     poses, brackets = _samples(records, complete)
     for k, rec in enumerate(poses):
         fs = frames.sample(rec, brackets)
-        cos_i = np.cos(np.radians(kin.forward(rec.joints_read or rec.joints_cmd).theta_i))
-        pose = binning_pose(rec)
+        read_back = kin.forward(rec.joints_read or rec.joints_cmd)
+        cos_i = np.cos(np.radians(read_back.theta_i))
         if fs is None or fs.n_valid == 0 or cos_i <= 0:
             continue
-        _add_sample(table, sums, pose, fs, white, frames.when[rec.step], cos_i)
+        _add_sample(table, binning_pose(rec), read_back, fs, white, frames.when[rec.step], cos_i)
         if progress:
             progress(k + 1, len(poses))
     frames.check.raise_if_any()
-    predicted = sums.predicted(table.shape) if sums is not None else None
-    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0, predicted,
-                     None if cal is None else cal.path)
+    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0,
+                     table.std_error**2, None if cal is None else cal.path)
 
 
 def _done_records(folder: SessionFolder) -> tuple[list[StepRecord], set[int]]:
@@ -272,8 +314,8 @@ class _SessionFrames:
 
     def frame(self, rec: StepRecord) -> FrameSignal | None:
         """The ROI signal of one plain frame."""
-        fs = self.check.load(rec.frame, lambda: frame_signal(
-            self.folder.frames_dir / str(rec.frame), self.rig.camera.roi, rec.step, self.cal))
+        fs = self.check.load(rec.frame, lambda: sample_signal(
+            self.folder.frames_dir / str(rec.frame), self.rig, rec.step, self.cal))
         return None if fs is None else dataclasses.replace(fs, at=self.when[rec.step])
 
     def sample(self, rec: StepRecord, brackets: dict[int, list[StepRecord]]
@@ -339,12 +381,6 @@ def _new_table(folder: SessionFolder, rig: RigConfig, plan: PlanSpec, drift_pct:
     return table
 
 
-def _noise_model_covers(cal: CalibrationBundle | None, records: list[StepRecord]) -> bool:
-    """True when the bundle has a noise model for the ISO of every frame that states one."""
-    return cal is not None and all(
-        cal.noise_for(float(r.iso)) is not None for r in records if getattr(r, "iso", None))
-
-
 def _samples(
     records: list[StepRecord], complete: set[int],
 ) -> tuple[list[StepRecord], dict[int, list[StepRecord]]]:
@@ -364,41 +400,26 @@ def _samples(
     return poses, brackets
 
 
-@dataclass(frozen=True)
-class _NoiseSums:
-    """Per flat table bin: Σ of the samples' predicted variances (sr⁻², R, G, B) and their count."""
-
-    var_sum: np.ndarray
-    var_n: np.ndarray
-
-    @classmethod
-    def zeros(cls, table: IsotropicTable) -> _NoiseSums:
-        """Empty sums for every bin of ``table``."""
-        return cls(np.zeros((int(np.prod(table.shape)), 3)), np.zeros(int(np.prod(table.shape))))
-
-    def add(self, idx: int, var_f: np.ndarray) -> None:
-        """Count one sample's variance in bin ``idx`` (skipped outside the table or if not finite)."""
-        if idx >= 0 and np.all(np.isfinite(var_f)):
-            self.var_sum[idx] += var_f
-            self.var_n[idx] += 1
-
-    def predicted(self, shape: tuple[int, ...]) -> np.ndarray:
-        """Variance of each bin's mean, Σ var / n² (table shape × 3; NaN for empty bins)."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return (self.var_sum / self.var_n[:, None] ** 2).reshape(*shape, 3)
+UNCERTAINTY_TERMS = (
+    {"noise": "the sample frame's noise (noise model, else ROI scatter), independent"},
+    {"white_reference": "the interpolated white reference's noise, common to the samples it "
+                        "normalises"},
+)
+"""(independent, correlated) terms of a point reduction's budget: name → description."""
 
 
-def _add_sample(table: IsotropicTable, sums: _NoiseSums | None, pose: Pose, fs: FrameSignal,
+def _add_sample(table: IsotropicTable, pose: Pose, read_back: Pose, fs: FrameSignal,
                 white: _WhiteScale, when: float, cos_i: float) -> None:
-    """Bin one sample's BRDF f = S / S_ref · (ρ / π) · (cos θi_ref / cos θi), sr⁻¹, and, with
-    noise sums, its predicted variance f² · (var S / S² + var S_ref / S_ref²)."""
+    """Bin one sample's BRDF f = S / S_ref · (ρ / π) · (cos θi_ref / cos θi), sr⁻¹, at its
+    commanded pose, with its uncertainty terms (noise: f² var S / S²; white reference:
+    f √var S_ref / S_ref) and its read-back angles."""
     ref = white.at(when)
     f = fs.signal / ref * (white.rho / np.pi) * (white.cos_ref / cos_i)
-    if sums is not None:
-        var_f = f**2 * (fs.variance / fs.signal**2 + white.var_at(when) / ref**2)
-        idx = int(np.ravel(table.flat_index(pose.theta_i, pose.theta_r, pose.delta_phi))[0])
-        sums.add(idx, var_f)
     table.add(
         np.array([pose.theta_i]), np.array([pose.theta_r]), np.array([pose.delta_phi]),
         f[None, :],
+        at=(np.array([read_back.theta_i]), np.array([read_back.theta_r]),
+            np.array([read_back.delta_phi])),
+        variances={"noise": (f**2 * fs.variance / fs.signal**2)[None, :]},
+        uncertainties={"white_reference": (np.abs(f) * np.sqrt(white.var_at(when)) / ref)[None, :]},
     )

@@ -1,4 +1,5 @@
-"""Isotropic BRDF table over (θi, θr, Δφ) bins and its HDF5 file (``gonio-isotropic-brdf`` v1).
+"""Isotropic BRDF table over (θi, θr, Δφ) bins and its HDF5 file (``gonio-isotropic-brdf`` v2;
+version-1 files still read).
 
 File layout (every dataset and attribute is written, nothing else):
 
@@ -11,12 +12,22 @@ delta_phi_edges    float64 [Nφ+1]    bin edges of Δφ = camera − light azimu
 mean               float64 [Ni,Nr,Nφ,3]  mean BRDF per bin, sr⁻¹ (not cos-weighted); NaN empty
 variance           float64 [Ni,Nr,Nφ,3]  sample variance (ddof 1) of the values; NaN if count<2
 count              int64 [Ni,Nr,Nφ]  samples per bin
+std_error          float64 [Ni,Nr,Nφ,3]  standard uncertainty of the bin mean, sr⁻¹ (v2):
+                   the root sum of squares of the terms in ``uncertainty/``; NaN empty
+mean_theta_i_deg   float64 [Ni,Nr,Nφ]  mean θi of the bin's samples (read-back), degrees (v2)
+mean_theta_r_deg   float64 [Ni,Nr,Nφ]  mean θr, degrees (v2)
+mean_delta_phi_deg float64 [Ni,Nr,Nφ]  mean Δφ as binned (folded or wrapped), degrees (v2)
+uncertainty/NAME   float64 [Ni,Nr,Nφ,3]  one term of the budget, sr⁻¹ (v2), with attributes
+                   ``correlated`` (common to the bins, e.g. the white reference) and
+                   ``description``
 @units             "1/sr"
 @quantity          "brdf"
 @channels          "R,G,B"
 @format            "gonio-isotropic-brdf"
-@version           1
+@version           2
 @provenance        JSON string given by the writer
+@scatter_ratio     observed / predicted scatter of repeated samples (NaN: no repeats) (v2)
+@scatter_bins      bins with ≥ 2 samples that ratio is taken over (v2)
 =================  ================  =====================================================
 """
 
@@ -39,12 +50,21 @@ from acquisition.tables.accumulator import (
 )
 from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.backend import kernels
+from acquisition.tables.uncertainty import (
+    Term,
+    UncertaintySums,
+    scatter_ratio,
+    total_std_error,
+)
 from drivers.errors import ConfigError
 from drivers.storage import atomic_output
 
 FORMAT = "gonio-isotropic-brdf"
-VERSION = 1
+VERSION = 2
+READS = (1, 2)
+"""Format versions :meth:`IsotropicTable.load_h5` reads."""
 _DATASETS = ("theta_i_edges", "theta_r_edges", "delta_phi_edges", "mean", "variance", "count")
+_MEAN_ANGLES = ("mean_theta_i_deg", "mean_theta_r_deg", "mean_delta_phi_deg")
 WHAT = "BRDF table"
 
 
@@ -131,6 +151,8 @@ class IsotropicTable(TableStatistics):
         self.provenance: dict[str, Any] = dict(provenance or {})
         self._acc = BinAccumulator(self.shape, 3, backend=backend)
         self._stored: tuple[np.ndarray, np.ndarray] | None = None  # (mean, variance) as loaded
+        self._unc: UncertaintySums | None = None
+        self._stored_scatter: tuple[float, int] | None = None
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -182,11 +204,20 @@ class IsotropicTable(TableStatistics):
         theta_r_deg: np.ndarray | float,
         delta_phi_deg: np.ndarray | float,
         rgb: np.ndarray,
+        *,
+        at: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+        variances: Mapping[str, np.ndarray] | None = None,
+        uncertainties: Mapping[str, np.ndarray] | None = None,
     ) -> int:
         """Bin samples: angles in degrees (broadcast to N), ``rgb`` (N, 3) BRDF in sr⁻¹.
 
         Samples outside the edges or with any NaN are dropped and counted
         (:attr:`n_dropped_range`, :attr:`n_dropped_nan`). Returns the number kept.
+
+        A table that tracks uncertainty (:meth:`track_uncertainty`) also takes each sample's
+        independent ``variances`` and correlated ``uncertainties`` by term name ((N, 3) each),
+        and ``at``: the (θi, θr, Δφ) in degrees where each sample really lies (default: the
+        binning angles), averaged per bin into :attr:`mean_angles`.
         """
         rgb = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
@@ -196,6 +227,9 @@ class IsotropicTable(TableStatistics):
         elif ti.size != n:
             raise ValueError(f"{ti.size} angle samples but {n} RGB samples")
         self._stored = None
+        self._stored_scatter = None
+        if self._unc is not None:
+            self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
         if self.backend == "numpy":
             return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)
         return self._acc.add_with(
@@ -210,12 +244,39 @@ class IsotropicTable(TableStatistics):
             bool(self.fold_delta_phi),
         )
 
+    def track_uncertainty(self, independent: Mapping[str, str],
+                          correlated: Mapping[str, str]) -> None:
+        """Keep each bin's uncertainty budget from now on: term name → description, for the
+        independent (per-sample variance) and correlated (common standard uncertainty) terms
+        (:mod:`acquisition.tables.uncertainty`). Call before the first :meth:`add`."""
+        if self.n_samples:
+            raise ConfigError("track_uncertainty must be called before samples are added")
+        self._unc = UncertaintySums(int(np.prod(self.shape)), independent, correlated)
+
+    def _add_uncertainty(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, rgb: np.ndarray,
+                         at: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+                         variances: Mapping[str, np.ndarray] | None,
+                         uncertainties: Mapping[str, np.ndarray] | None) -> None:
+        assert self._unc is not None
+        if variances is None or uncertainties is None:
+            raise ConfigError("this table tracks uncertainty: add() needs variances= and "
+                              "uncertainties= for every term")
+        idx = self.flat_index(ti, tr, dp)
+        idx[~np.all(np.isfinite(rgb), axis=1)] = DROP_NAN  # as the accumulator drops them
+        ai, ar, ap = (ti, tr, dp) if at is None else as_flat_float64(*at)
+        angles = np.stack(np.broadcast_arrays(ai, ar, self.normalise_delta_phi(ap)), axis=-1)
+        self._unc.add(idx, angles.reshape(-1, 3), variances, uncertainties)
+
     def merge(self, other: IsotropicTable) -> IsotropicTable:
-        """New table holding the samples of both (edges must be equal)."""
+        """New table holding the samples of both (edges must be equal); the uncertainty budget
+        is kept when both tables track the same terms."""
         self._check_same_edges(other)
         new = self._empty_like()
         new._acc.merge_from(self._acc)
         new._acc.merge_from(other._acc)
+        if self._unc is not None and other._unc is not None:
+            new._unc = self._unc.copy()
+            new._unc.merge_from(other._unc)
         return new
 
     def __add__(self, other: IsotropicTable) -> IsotropicTable:
@@ -267,6 +328,47 @@ class IsotropicTable(TableStatistics):
             return self._stored[1].copy()
         return self._acc.variance()
 
+    @property
+    def tracks_uncertainty(self) -> bool:
+        """True when the table holds an uncertainty budget (reduced by gonio, or a v2 file)."""
+        return self._unc is not None
+
+    @property
+    def uncertainty_terms(self) -> dict[str, Term]:
+        """The budget: term name → :class:`Term` (bin-mean standard uncertainty, sr⁻¹); empty
+        when the table does not track uncertainty."""
+        return {} if self._unc is None else self._unc.terms(self.shape)
+
+    @property
+    def std_error(self) -> np.ndarray:
+        """Standard uncertainty of each bin's mean, sr⁻¹, ``shape + (3,)``: the root sum of
+        squares of the budget's terms; NaN where unmeasured or untracked."""
+        terms = self.uncertainty_terms
+        if not terms:
+            return np.full(self.shape + (3,), np.nan)
+        return total_std_error(terms)
+
+    @property
+    def mean_angles(self) -> np.ndarray:
+        """Mean (θi, θr, Δφ) of each bin's samples in degrees, ``shape + (3,)``; the bin
+        centres where the table does not track where its samples lie; NaN where empty."""
+        if self._unc is not None:
+            return self._unc.mean_angles(self.shape)
+        grids = np.meshgrid(*self.centers(), indexing="ij")
+        out = np.stack(grids, axis=-1)
+        out[self.count == 0] = np.nan
+        return out
+
+    @property
+    def scatter(self) -> tuple[float, int]:
+        """(observed / predicted scatter of repeated samples, bins with repeats); (NaN, 0)
+        without repeats or without a budget."""
+        if self._stored_scatter is not None:
+            return self._stored_scatter
+        if self._unc is None:
+            return float("nan"), 0
+        return scatter_ratio(self._unc, self.variance, self.count)
+
     # ------------------------------------------------------------------ HDF5
     def save_h5(
         self, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None, *,
@@ -289,6 +391,7 @@ class IsotropicTable(TableStatistics):
             f.create_dataset("mean", data=self.mean.astype(np.float64))
             f.create_dataset("variance", data=self.variance.astype(np.float64))
             f.create_dataset("count", data=self.count.astype(np.int64))
+            self._write_uncertainty(f)
             f.attrs["units"] = "1/sr"
             f.attrs["quantity"] = "brdf"
             f.attrs["channels"] = "R,G,B"
@@ -296,9 +399,25 @@ class IsotropicTable(TableStatistics):
             f.attrs["version"] = np.int64(VERSION)
             f.attrs["provenance"] = prov
 
+    def _write_uncertainty(self, f: h5py.File) -> None:
+        """The v2 datasets: std_error, mean angles, the budget's terms, the scatter ratio."""
+        f.create_dataset("std_error", data=self.std_error)
+        angles = self.mean_angles
+        for k, name in enumerate(_MEAN_ANGLES):
+            f.create_dataset(name, data=angles[..., k])
+        group = f.create_group("uncertainty")
+        for name, term in self.uncertainty_terms.items():
+            d = group.create_dataset(name, data=term.values)
+            d.attrs["correlated"] = bool(term.correlated)
+            d.attrs["description"] = term.description
+        ratio, bins = self.scatter
+        f.attrs["scatter_ratio"] = float(ratio)
+        f.attrs["scatter_bins"] = np.int64(bins)
+
     @classmethod
     def load_h5(cls, path: str | os.PathLike[str]) -> IsotropicTable:
-        """Read a ``gonio-isotropic-brdf`` v1 file; raises :class:`ConfigError` if it is not one.
+        """Read a ``gonio-isotropic-brdf`` v1 or v2 file; raises :class:`ConfigError` if it is
+        not one. A v2 file's uncertainty budget and mean angles come back with it.
 
         The loaded table can take more samples and be merged: its running sums are rebuilt
         from count, mean and variance. Until then :attr:`mean` and :attr:`variance` return the
@@ -321,17 +440,18 @@ class IsotropicTable(TableStatistics):
                     "pass a table written by 'gonio reduce'"
                 )
             version = f.attrs.get("version")
-            if version is None or np.ndim(version) != 0 or version != VERSION:
+            if version is None or np.ndim(version) != 0 or version not in READS:
                 shown = version.item() if isinstance(version, np.generic) else version
                 raise ConfigError(
                     f"table {path}: version {shown!r} unsupported (this gonio reads "
-                    f"{FORMAT} version {VERSION}); upgrade gonio"
+                    f"{FORMAT} versions {', '.join(map(str, READS))}); upgrade gonio"
                 )
             missing = [name for name in _DATASETS if name not in f]
             if missing:
                 raise ConfigError(f"table {path}: missing dataset(s) {', '.join(missing)}")
             data = {name: f[name][()] for name in _DATASETS}
             prov_text = _attr_str(f.attrs.get("provenance")) or "{}"
+            budget = _read_uncertainty(f, path) if int(version) >= 2 else None
         try:
             provenance = json.loads(prov_text)
         except json.JSONDecodeError:
@@ -354,6 +474,11 @@ class IsotropicTable(TableStatistics):
             data["count"], mean, variance, backend=table.backend
         )
         table._stored = (mean, variance)
+        if budget is not None:
+            terms, angles, scatter = budget
+            if terms:
+                table._unc = UncertaintySums.from_terms(data["count"], terms, angles)
+            table._stored_scatter = scatter
         return table
 
     # ------------------------------------------------------------------ helpers
@@ -373,6 +498,20 @@ class IsotropicTable(TableStatistics):
                 raise ConfigError(
                     f"cannot merge tables: {name} differ; bin both with the same edges"
                 )
+
+
+def _read_uncertainty(f: h5py.File, path: Path
+                      ) -> tuple[dict[str, Term], np.ndarray, tuple[float, int]]:
+    """A v2 file's budget terms, mean angles (…, 3) and (scatter ratio, bins)."""
+    missing = [n for n in ("std_error", *_MEAN_ANGLES, "uncertainty") if n not in f]
+    if missing:
+        raise ConfigError(f"table {path}: version 2 but missing {', '.join(missing)}")
+    terms = {name: Term(np.asarray(d[()], np.float64), bool(d.attrs.get("correlated", False)),
+                        _attr_str(d.attrs.get("description")) or "")
+             for name, d in f["uncertainty"].items()}
+    angles = np.stack([np.asarray(f[n][()], np.float64) for n in _MEAN_ANGLES], axis=-1)
+    scatter = (float(f.attrs.get("scatter_ratio", np.nan)), int(f.attrs.get("scatter_bins", 0)))
+    return terms, angles, scatter
 
 
 def _attr_str(value: Any) -> str | None:

@@ -1,0 +1,246 @@
+"""Fit an analytic model to a BRDF table: weighted nonlinear least squares with honest 1σ.
+
+* **Data**: the table's measured bins, each evaluated at the mean angles of its samples
+  (read-back poses sit off the bin centres), weighted by its uncertainty budget: independent
+  terms per bin, and the common-mode terms (the white reference) as one error per channel
+  fully correlated across bins. Residuals are whitened with that covariance, D + v vᵀ, in
+  O(N) (a rank-one update of the diagonal).
+* **Space**: the model's fit variables (:class:`~acquisition.analysis.models.base.Param`):
+  log roughness / exponents, linear colour weights, energy-coupled fractions — a box in
+  which every point conserves energy. SciPy's ``least_squares`` (trust-region reflective)
+  searches it.
+* **Start** (no knowledge of the answer): a grid over the shared shape parameters; at each
+  node the colour parameters, which enter the model affinely, are solved by bounded linear
+  least squares (``lsq_linear``); the best nodes seed the nonlinear fit.
+* **Uncertainty**: covariance (JᵀJ)⁻¹ · χ²/dof of the fit variables from the whitened
+  Jacobian, propagated to the physical parameters through the Jacobian of the map.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares, lsq_linear
+
+from acquisition.analysis.fitdata import BinData
+from acquisition.analysis.metrics import metrics
+from acquisition.analysis.models import CHANNELS, Model
+from acquisition.analysis.models.base import Param
+from acquisition.analysis.models.cosines import Cosines
+from drivers.errors import ConfigError
+
+GRID_NODES_LOG = 9
+GRID_NODES_LINEAR = 4
+SEEDS = 3
+"""Best grid nodes the nonlinear fit starts from."""
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where each fit variable sits in the flat vector x (log-scaled where the Param says)."""
+
+    params: tuple[Param, ...]
+
+    @property
+    def size(self) -> int:
+        return sum(p.size for p in self.params)
+
+    def slices(self) -> list[tuple[Param, slice]]:
+        out, k = [], 0
+        for p in self.params:
+            out.append((p, slice(k, k + p.size)))
+            k += p.size
+        return out
+
+    def values(self, x: np.ndarray) -> dict[str, np.ndarray | float]:
+        out: dict[str, np.ndarray | float] = {}
+        for p, sl in self.slices():
+            v = np.exp(x[sl]) if p.log else np.asarray(x[sl], float)
+            out[p.name] = v.copy() if p.per_channel else float(v[0])
+        return out
+
+    def vector(self, fit: dict[str, Any]) -> np.ndarray:
+        x = np.empty(self.size)
+        for p, sl in self.slices():
+            v = np.clip(np.broadcast_to(np.asarray(fit[p.name], float), (p.size,)), p.lo, p.hi)
+            x[sl] = np.log(np.maximum(v, 1e-300)) if p.log else v
+        return x
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = np.empty(self.size), np.empty(self.size)
+        for p, sl in self.slices():
+            lo[sl], hi[sl] = (np.log(p.lo), np.log(p.hi)) if p.log else (p.lo, p.hi)
+        return lo, hi
+
+
+def _whitener(data: BinData) -> Callable[[np.ndarray], np.ndarray]:
+    """r (N, 3) → whitened residuals (3N,) for covariance diag(u²) + v vᵀ per channel."""
+    d = data.u_independent
+    a = data.u_common / d
+    s = np.sum(a * a, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        beta = np.where(s > 0, (1.0 - 1.0 / np.sqrt(1.0 + s)) / s, 0.0)
+
+    def whiten(r: np.ndarray) -> np.ndarray:
+        y = r / d
+        return (y - beta * a * np.sum(a * y, axis=0)).T.ravel()
+
+    return whiten
+
+
+@dataclass
+class FitResult:
+    """A fitted model: parameters with 1σ, goodness of fit and the literature's metrics."""
+
+    model: Model
+    params: dict[str, np.ndarray | float]
+    sigma: dict[str, np.ndarray | float]
+    chi2_dof: float
+    dof: int
+    metrics: dict[str, float]
+    n_bins: int
+    covariance: np.ndarray = field(repr=False)
+    """Covariance of the physical parameters, flattened in the model's parameter order."""
+
+    @property
+    def material(self) -> str:
+        """A material spec the simulated camera accepts (re-capture the fit)."""
+        return self.model.spec(self.params)
+
+    def evaluate(self, theta_i_deg: Any, theta_r_deg: Any, delta_phi_deg: Any) -> np.ndarray:
+        """The fitted BRDF (…, 3), sr⁻¹, at (θi, θr, Δφ) in degrees."""
+        return self.model(theta_i_deg, theta_r_deg, delta_phi_deg, self.params)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"model", "params": {P: {"value", "sigma"} | {"R": {..}, "G": {..}, "B": {..}}},
+        "chi2_dof", "dof", "bins", "metrics", "material"}``."""
+        params: dict[str, Any] = {}
+        for p in self.model.params:
+            v, s = self.params[p.name], self.sigma[p.name]
+            if p.per_channel:
+                params[p.name] = {c: {"value": float(v[k]), "sigma": float(s[k])}  # type: ignore[index]
+                                  for k, c in enumerate(CHANNELS)}
+            else:
+                params[p.name] = {"value": float(v), "sigma": float(s)}  # type: ignore[arg-type]
+        return {"model": self.model.name, "params": params, "chi2_dof": self.chi2_dof,
+                "dof": self.dof, "bins": self.n_bins, "metrics": self.metrics,
+                "material": self.material}
+
+
+class _Problem:
+    """The residual function of one model on one table's bins."""
+
+    def __init__(self, model: Model, data: BinData) -> None:
+        self.model, self.data = model, data
+        self.layout = _Layout(model.params)
+        self.cos = Cosines.of(*data.angles_deg.T)
+        self.whiten = _whitener(data)
+
+    def physical(self, x: np.ndarray) -> dict[str, np.ndarray | float]:
+        return self.model.physical(self.layout.values(x))
+
+    def predict(self, physical: dict[str, np.ndarray | float]) -> np.ndarray:
+        return self.model.evaluate(self.cos, physical)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self.whiten(self.predict(self.physical(x)) - self.data.values)
+
+    def flat_physical(self, x: np.ndarray) -> np.ndarray:
+        p = self.physical(x)
+        return np.concatenate([np.atleast_1d(np.asarray(p[q.name], float))
+                               for q in self.model.params])
+
+
+def _shared_grid(model: Model) -> list[dict[str, float]]:
+    """Nodes over the shared (shape) parameters: geometric for log ones, linear otherwise;
+    a second lobe is kept broader than the first."""
+    shared = [p for p in model.params if not p.per_channel]
+    axes = [np.geomspace(p.lo, p.hi, GRID_NODES_LOG) if p.log
+            else np.linspace(p.lo, p.hi, GRID_NODES_LINEAR) for p in shared]
+    nodes = [dict(zip([p.name for p in shared], map(float, combo), strict=True))
+             for combo in itertools.product(*axes)]
+    return [n for n in nodes if n.get("alpha2", np.inf) > n.get("alpha", 0.0)
+            and n.get("e2", 0.0) < n.get("e", np.inf)]
+
+
+def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, np.ndarray]:
+    """At fixed shape parameters, the colour parameters by bounded linear least squares on
+    each channel (the model is affine in each of them); returns (cost, fit vector)."""
+    model, data = problem.model, problem.data
+    colour = [p for p in model.params if p.per_channel]
+    base = {p.name: np.zeros(3) for p in colour} | shared
+    f0 = problem.predict(base)
+    columns = []
+    for p in colour:
+        unit = dict(base)
+        unit[p.name] = np.ones(3)
+        columns.append(problem.predict(unit) - f0)
+    w = 1.0 / np.sqrt(data.u_independent**2 + data.u_common**2)
+    physical: dict[str, Any] = dict(shared)
+    for p in colour:
+        physical[p.name] = np.zeros(3)
+    cost = 0.0
+    for c in range(3):
+        a = np.stack([col[:, c] for col in columns], axis=1) * w[:, c:c + 1]
+        b = (data.values[:, c] - f0[:, c]) * w[:, c]
+        sol = lsq_linear(a, b, bounds=(0.0, 1.0))
+        cost += float(sol.cost)
+        for p, v in zip(colour, sol.x, strict=True):
+            physical[p.name][c] = v
+    x = problem.layout.vector(model.fit_values(physical))
+    return float(np.sum(problem.residuals(x) ** 2)), x
+
+
+def _covariance(problem: _Problem, x: np.ndarray, jac: np.ndarray, chi2_dof: float
+                ) -> np.ndarray:
+    """Covariance of the physical parameters: J_P (JᵀJ)⁻¹ J_Pᵀ · χ²/dof."""
+    cov_x = np.linalg.pinv(jac.T @ jac) * chi2_dof
+    lo, hi = problem.layout.bounds()
+    jp = np.empty((problem.flat_physical(x).size, x.size))
+    for k in range(x.size):
+        h = 1e-6 * max(1.0, abs(x[k]))
+        up, dn = x.copy(), x.copy()
+        up[k], dn[k] = min(x[k] + h, hi[k]), max(x[k] - h, lo[k])
+        jp[:, k] = (problem.flat_physical(up) - problem.flat_physical(dn)) / (up[k] - dn[k])
+    return jp @ cov_x @ jp.T
+
+
+def fit_model(model: Model, data: BinData) -> FitResult:
+    """Fit ``model`` to the bins ``data`` (see the module docstring)."""
+    n_params = _Layout(model.params).size
+    dof = 3 * data.n - n_params
+    if dof < 1:
+        raise ConfigError(f"{data.n} measured bins cannot fit {n_params} parameters of "
+                          f"{model.name}: measure more poses or fit a simpler model")
+    problem = _Problem(model, data)
+    starts = sorted((_linear_start(problem, node) for node in _shared_grid(model)),
+                    key=lambda s: s[0])[:SEEDS]
+    lo, hi = problem.layout.bounds()
+    best = None
+    for _, x0 in starts:
+        sol = least_squares(problem.residuals, np.clip(x0, lo, hi), bounds=(lo, hi),
+                            method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                            max_nfev=2000)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    chi2 = 2.0 * float(best.cost)
+    chi2_dof = chi2 / dof
+    cov = _covariance(problem, best.x, best.jac, chi2_dof)
+    physical = problem.physical(best.x)
+    sigma_flat = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sigma: dict[str, np.ndarray | float] = {}
+    k = 0
+    for p in model.params:
+        s = sigma_flat[k:k + (3 if p.per_channel else 1)]
+        sigma[p.name] = s.copy() if p.per_channel else float(s[0])
+        k += s.size
+    physical = {q.name: (np.asarray(physical[q.name], float) if q.per_channel
+                         else float(physical[q.name])) for q in model.params}
+    fitted = problem.predict(physical)
+    return FitResult(model, physical, sigma, chi2_dof, dof,
+                     metrics(data.values, fitted, data.cos_i, data.solid_angle), data.n, cov)

@@ -1,0 +1,55 @@
+"""``gonio fit``: fit the lecture's models to a table or session, with 1σ and the metrics."""
+
+from __future__ import annotations
+
+import argparse
+
+from acquisition import api
+from acquisition.cli.options import add_json, report
+
+COMMANDS = {"fit": "fit an analytic BRDF model to a table or session (weighted, with 1σ)"}
+
+_MODELS = ("lambert", "oren-nayar", "phong", "blinn-phong", "ggx", "beckmann")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help=COMMANDS["fit"])
+    p.add_argument("source", help="isotropic table (.h5) or session folder")
+    p.add_argument("--model", required=True, choices=_MODELS,
+                   help="ggx fits exactly the ggx: material's form (Lambert + one GGX lobe, "
+                        "separable Smith, Schlick)")
+    p.add_argument("--lobes", type=int, choices=(1, 2), default=1,
+                   help="specular lobes (phong, blinn-phong, ggx, beckmann)")
+    p.add_argument("--masking", choices=("separable", "height-correlated"), default="separable",
+                   help="Smith masking of the microfacet models")
+    p.add_argument("--fresnel", choices=("schlick", "dielectric", "conductor"),
+                   default="schlick", help="Fresnel term of the microfacet models")
+    p.add_argument("--calibration", metavar="BUNDLE",
+                   help="calibration bundle to reduce a session with")
+    add_json(p)
+    p.set_defaults(func=run_fit)
+
+
+def _value(entry: dict) -> str:
+    return f"{entry['value']:.6g} ± {entry['sigma']:.2g}"
+
+
+def fit_lines(result: dict) -> list[str]:
+    """The text report of a fit's :meth:`FitResult.to_dict`."""
+    lines = [f"{result['model']} fit to {result['bins']} bins: χ²/dof {result['chi2_dof']:.3g} "
+             f"({result['dof']} dof)"]
+    for name, entry in result["params"].items():
+        if "value" in entry:
+            lines.append(f"  {name:<9} {_value(entry)}")
+        else:
+            lines.append(f"  {name:<9} " + "   ".join(f"{c} {_value(e)}" for c, e in entry.items()))
+    lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in result["metrics"].items()))
+    lines.append(f"material: {result['material']}")
+    return lines
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    result = api.fit(args.source, args.model, lobes=args.lobes, masking=args.masking,
+                     fresnel=args.fresnel, calibration=args.calibration).to_dict()
+    report(args, result, fit_lines(result))
+    return 0

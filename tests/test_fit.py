@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from captured import MATERIALS
 from conftest import EXAMPLES
 
 from acquisition import api
@@ -22,28 +23,8 @@ from drivers.errors import ConfigError
 from simulators.materials import material_from_spec
 
 RIG = EXAMPLES / "rig-sim.toml"
-QUICK = EXAMPLES / "plan-quick.toml"
-MATERIALS = {
-    "ggx": ("ggx:albedo=0.2,alpha=0.3,f0=0.04", {"albedo": 0.2, "alpha": 0.3, "f0": 0.04}),
-    "beckmann": ("beckmann:albedo=0.15,alpha=0.2,f0=0.05",
-                 {"albedo": 0.15, "alpha": 0.2, "f0": 0.05}),
-    "blinn-phong": ("blinn-phong:albedo=0.3,ks=0.05,e=100",
-                    {"albedo": 0.3, "ks": 0.05, "e": 100.0}),
-}
 TOLERANCE = {"albedo": 0.01, "alpha": 0.01, "e": 0.01, "f0": 0.02, "ks": 0.02}
 """The issue's relative tolerances: 1 % (α, albedo, Blinn-Phong e), 2 % (f0, ks)."""
-
-
-@pytest.fixture(scope="module")
-def quick_tables(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """plan-quick captured on rig-sim (its sensor model) for each material, reduced."""
-    root = tmp_path_factory.mktemp("fit")
-    tables = {}
-    for seed, (name, (spec, _)) in enumerate(MATERIALS.items()):
-        api.capture(RIG, QUICK, root / name, material=spec, seed=10 + seed)
-        tables[name] = root / f"{name}.h5"
-        api.reduce(root / name, tables[name])
-    return tables
 
 
 @pytest.mark.parametrize("name", list(MATERIALS))

@@ -1,5 +1,6 @@
-"""From table to insight: plots of plans and tables.
+"""From table to insight: the lecture's BRDF models (``models``), weighted fits with 1σ
+(``fit``), physical checks (``checks``), comparisons (``compare``), plots and the HTML report.
 
 May import: ``acquisition.geometry``, ``acquisition.planning``, ``acquisition.tables``,
-``drivers.errors``, ``drivers.storage``.
+``acquisition.formats``, ``drivers.errors``, ``drivers.storage``.
 """

@@ -24,7 +24,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "ScriptedSession", "scripted_session", "reduce",
     ),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
-    "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty"),
+    "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty", "check",
+                                 "CheckReport", "compare"),
+    "acquisition.analysis.compare": ("Comparison",),
     "acquisition.analysis.fit": ("FitResult",),
     "acquisition.analysis.models": ("MODEL_NAMES", "make_model"),
     "acquisition.simworld.materials": ("DEFAULT_MATERIAL",),
@@ -85,10 +87,18 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # what type checkers and IDEs see
+    from acquisition.analysis.compare import Comparison
     from acquisition.analysis.fit import FitResult
     from acquisition.analysis.models import MODEL_NAMES, make_model
     from acquisition.analysis.plots import plot_slices, plot_sweep
-    from acquisition.api.analysis import fit, median_relative_uncertainty, open_table
+    from acquisition.api.analysis import (
+        CheckReport,
+        check,
+        compare,
+        fit,
+        median_relative_uncertainty,
+        open_table,
+    )
     from acquisition.api.demo import DemoResult, run_demo
     from acquisition.api.sessions import (
         CaptureResult,

@@ -3,10 +3,15 @@ physics, compare, report."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from acquisition.analysis.checks import Check, check_table
+from acquisition.analysis.compare import Comparison, open_side
+from acquisition.analysis.compare import compare as compare_sides
 from acquisition.analysis.fit import FitResult, fit_model
 from acquisition.analysis.fitdata import bin_data
 from acquisition.analysis.models import make_model
@@ -51,3 +56,38 @@ def fit(source: str | Path | IsotropicTable, model: str = "ggx", *, lobes: int =
     except ValueError as exc:
         raise ConfigError(f"gonio fit: {exc}") from None
     return fit_model(m, bin_data(open_table(source, calibration=calibration)))
+
+
+@dataclass
+class CheckReport:
+    """What :func:`check` found: every check, and whether any failed."""
+
+    source: str
+    checks: list[Check]
+
+    @property
+    def failed(self) -> list[Check]:
+        return [c for c in self.checks if c.passed is False]
+
+    def lines(self) -> list[str]:
+        return [c.line for c in self.checks]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"source": self.source, "passed": not self.failed,
+                "checks": {c.name: {"passed": c.passed, "line": c.line, **c.details}
+                           for c in self.checks}}
+
+
+def check(source: str | Path | IsotropicTable, *,
+          calibration: str | Path | None = None) -> CheckReport:
+    """Physical checks of a table or session (:mod:`acquisition.analysis.checks`)."""
+    return CheckReport(str(source) if not isinstance(source, IsotropicTable) else "table",
+                       check_table(open_table(source, calibration=calibration)))
+
+
+def compare(a: str | Path | IsotropicTable, b: str | Path | IsotropicTable) -> Comparison:
+    """Compare ``b`` with ``a``: each a table (``.h5``), a MERL file or a material spec
+    (:mod:`acquisition.analysis.compare`)."""
+    from acquisition.simworld.materials import parse_material
+
+    return compare_sides(open_side(a, parse_material), open_side(b, parse_material))

@@ -1,13 +1,19 @@
-"""``gonio fit``: fit the lecture's models to a table or session, with 1σ and the metrics."""
+"""``gonio fit`` (the lecture's models, with 1σ and the metrics), ``gonio check`` (reciprocity,
+energy, coverage, SNR) and ``gonio compare`` (two tables, MERL files or material specs)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from acquisition import api
 from acquisition.cli.options import add_json, report
 
-COMMANDS = {"fit": "fit an analytic BRDF model to a table or session (weighted, with 1σ)"}
+COMMANDS = {
+    "fit": "fit an analytic BRDF model to a table or session (weighted, with 1σ)",
+    "check": "check a table's physics: reciprocity, energy, coverage, SNR (exit 1 on failure)",
+    "compare": "compare two tables, MERL files or material specs over their common bins",
+}
 
 _MODELS = ("lambert", "oren-nayar", "phong", "blinn-phong", "ggx", "beckmann")
 
@@ -28,6 +34,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibration bundle to reduce a session with")
     add_json(p)
     p.set_defaults(func=run_fit)
+
+    p = sub.add_parser("check", help=COMMANDS["check"])
+    p.add_argument("source", help="isotropic table (.h5) or session folder")
+    p.add_argument("--calibration", metavar="BUNDLE",
+                   help="calibration bundle to reduce a session with")
+    add_json(p)
+    p.set_defaults(func=run_check)
+
+    p = sub.add_parser("compare", help=COMMANDS["compare"])
+    p.add_argument("a", help="reference: table (.h5), MERL file or material spec")
+    p.add_argument("b", help="the other: table (.h5), MERL file or material spec")
+    add_json(p)
+    p.set_defaults(func=run_compare)
 
 
 def _value(entry: dict) -> str:
@@ -52,4 +71,19 @@ def run_fit(args: argparse.Namespace) -> int:
     result = api.fit(args.source, args.model, lobes=args.lobes, masking=args.masking,
                      fresnel=args.fresnel, calibration=args.calibration).to_dict()
     report(args, result, fit_lines(result))
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Exit 0 when every check passes, 1 with one line per failed check on stderr."""
+    result = api.check(args.source, calibration=args.calibration)
+    report(args, result.to_dict(), result.lines())
+    for failed in result.failed:
+        print(f"gonio: check failed: {failed.line}", file=sys.stderr)
+    return 1 if result.failed else 0
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    result = api.compare(args.a, args.b)
+    report(args, result.to_dict(), result.lines())
     return 0

@@ -10,6 +10,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
+pytest_plugins = ("captured",)  # session-scoped captures the analysis tests share
+
 
 def external_data_dir() -> Path | None:
     """``$GONIO_EXTERNAL_DATA`` or ``../shared/data`` beside the project, if present."""

@@ -1,10 +1,13 @@
 """Fit an analytic model to a BRDF table: weighted nonlinear least squares with honest 1σ.
 
 * **Data**: the table's measured bins, each evaluated at the mean angles of its samples
-  (read-back poses sit off the bin centres), weighted by its uncertainty budget: independent
-  terms per bin, and the common-mode terms (the white reference) as one error per channel
-  fully correlated across bins. Residuals are whitened with that covariance, D + v vᵀ, in
-  O(N) (a rank-one update of the diagonal).
+  (read-back poses sit off the bin centres), weighted by its independent uncertainty terms.
+  The common-mode terms (the white reference: one error scales every bin of a channel) enter
+  as a nuisance scale per channel, (1 + δ_c) × model, with the prior δ_c ~ N(0, r_c²), r_c
+  the terms' relative size. Fitting the scale, rather than whitening the data with a
+  covariance built from the data, avoids Peelle's pertinent puzzle (a generalised least
+  squares fit with a data-based normalisation covariance drifts low on a misfit model); the
+  scale's uncertainty reaches the parameters through the Jacobian.
 * **Space**: the model's fit variables (:class:`~acquisition.analysis.models.base.Param`):
   log roughness / exponents, linear colour weights, energy-coupled fractions — a box in
   which every point conserves energy. SciPy's ``least_squares`` (trust-region reflective)
@@ -19,7 +22,6 @@
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -77,19 +79,11 @@ class _Layout:
         return lo, hi
 
 
-def _whitener(data: BinData) -> Callable[[np.ndarray], np.ndarray]:
-    """r (N, 3) → whitened residuals (3N,) for covariance diag(u²) + v vᵀ per channel."""
-    d = data.u_independent
-    a = data.u_common / d
-    s = np.sum(a * a, axis=0)
+def common_scale(data: BinData) -> np.ndarray:
+    """Relative size r_c (3,) of the common-mode terms per channel (median over bins)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        beta = np.where(s > 0, (1.0 - 1.0 / np.sqrt(1.0 + s)) / s, 0.0)
-
-    def whiten(r: np.ndarray) -> np.ndarray:
-        y = r / d
-        return (y - beta * a * np.sum(a * y, axis=0)).T.ravel()
-
-    return whiten
+        rel = data.u_common / np.abs(data.values)
+    return np.nan_to_num(np.nanmedian(rel, axis=0))
 
 
 @dataclass
@@ -105,6 +99,8 @@ class FitResult:
     n_bins: int
     covariance: np.ndarray = field(repr=False)
     """Covariance of the physical parameters, flattened in the model's parameter order."""
+    at_bound: tuple[str, ...] = ()
+    """Parameters that ended on an edge of the fit box (their 1σ is not meaningful there)."""
 
     @property
     def material(self) -> str:
@@ -128,26 +124,45 @@ class FitResult:
                 params[p.name] = {"value": float(v), "sigma": float(s)}  # type: ignore[arg-type]
         return {"model": self.model.name, "params": params, "chi2_dof": self.chi2_dof,
                 "dof": self.dof, "bins": self.n_bins, "metrics": self.metrics,
-                "material": self.material}
+                "material": self.material, "at_bound": list(self.at_bound)}
 
 
 class _Problem:
-    """The residual function of one model on one table's bins."""
+    """The residual function of one model on one table's bins: the model's fit variables,
+    then (where the table has common-mode terms) the three nuisance scales δ_c."""
 
     def __init__(self, model: Model, data: BinData) -> None:
         self.model, self.data = model, data
+        self.scale = common_scale(data)
+        self.nuisance = bool(np.any(self.scale > 0))
         self.layout = _Layout(model.params)
         self.cos = Cosines.of(*data.angles_deg.T)
-        self.whiten = _whitener(data)
+
+    @property
+    def size(self) -> int:
+        return self.layout.size + (3 if self.nuisance else 0)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.layout.bounds()
+        if self.nuisance:
+            width = 50.0 * np.maximum(self.scale, 1e-12)
+            lo, hi = np.concatenate([lo, -width]), np.concatenate([hi, width])
+        return lo, hi
 
     def physical(self, x: np.ndarray) -> dict[str, np.ndarray | float]:
-        return self.model.physical(self.layout.values(x))
+        return self.model.physical(self.layout.values(x[:self.layout.size]))
 
     def predict(self, physical: dict[str, np.ndarray | float]) -> np.ndarray:
         return self.model.evaluate(self.cos, physical)
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        return self.whiten(self.predict(self.physical(x)) - self.data.values)
+        model = self.predict(self.physical(x))
+        if not self.nuisance:
+            return ((model - self.data.values) / self.data.u_independent).T.ravel()
+        delta = x[self.layout.size:]
+        r = (model * (1.0 + delta) - self.data.values) / self.data.u_independent
+        prior = np.where(self.scale > 0, delta / np.maximum(self.scale, 1e-300), delta * 1e12)
+        return np.concatenate([r.T.ravel(), prior])
 
     def flat_physical(self, x: np.ndarray) -> np.ndarray:
         p = self.physical(x)
@@ -179,7 +194,7 @@ def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, n
         unit = dict(base)
         unit[p.name] = np.ones(3)
         columns.append(problem.predict(unit) - f0)
-    w = 1.0 / np.sqrt(data.u_independent**2 + data.u_common**2)
+    w = 1.0 / data.u_independent
     physical: dict[str, Any] = dict(shared)
     for p in colour:
         physical[p.name] = np.zeros(3)
@@ -191,7 +206,8 @@ def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, n
         cost += float(sol.cost)
         for p, v in zip(colour, sol.x, strict=True):
             physical[p.name][c] = v
-    x = problem.layout.vector(model.fit_values(physical))
+    x = np.concatenate([problem.layout.vector(model.fit_values(physical)),
+                        np.zeros(problem.size - problem.layout.size)])
     return float(np.sum(problem.residuals(x) ** 2)), x
 
 
@@ -199,7 +215,7 @@ def _covariance(problem: _Problem, x: np.ndarray, jac: np.ndarray, chi2_dof: flo
                 ) -> np.ndarray:
     """Covariance of the physical parameters: J_P (JᵀJ)⁻¹ J_Pᵀ · χ²/dof."""
     cov_x = np.linalg.pinv(jac.T @ jac) * chi2_dof
-    lo, hi = problem.layout.bounds()
+    lo, hi = problem.bounds()
     jp = np.empty((problem.flat_physical(x).size, x.size))
     for k in range(x.size):
         h = 1e-6 * max(1.0, abs(x[k]))
@@ -219,7 +235,7 @@ def fit_model(model: Model, data: BinData) -> FitResult:
     problem = _Problem(model, data)
     starts = sorted((_linear_start(problem, node) for node in _shared_grid(model)),
                     key=lambda s: s[0])[:SEEDS]
-    lo, hi = problem.layout.bounds()
+    lo, hi = problem.bounds()
     best = None
     for _, x0 in starts:
         sol = least_squares(problem.residuals, np.clip(x0, lo, hi), bounds=(lo, hi),
@@ -242,5 +258,9 @@ def fit_model(model: Model, data: BinData) -> FitResult:
     physical = {q.name: (np.asarray(physical[q.name], float) if q.per_channel
                          else float(physical[q.name])) for q in model.params}
     fitted = problem.predict(physical)
+    edge = 1e-6 * np.maximum(hi - lo, 1.0)
+    on_edge = (best.x - lo < edge) | (hi - best.x < edge)
+    at_bound = tuple(p.name for p, sl in problem.layout.slices() if on_edge[sl].any())
     return FitResult(model, physical, sigma, chi2_dof, dof,
-                     metrics(data.values, fitted, data.cos_i, data.solid_angle), data.n, cov)
+                     metrics(data.values, fitted, data.cos_i, data.solid_angle), data.n, cov,
+                     at_bound)

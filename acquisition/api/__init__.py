@@ -25,7 +25,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
     "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty", "check",
-                                 "CheckReport", "compare"),
+                                 "CheckReport", "compare", "report", "ReportResult",
+                                 "REPORT_MODELS"),
     "acquisition.analysis.compare": ("Comparison",),
     "acquisition.analysis.fit": ("FitResult",),
     "acquisition.analysis.models": ("MODEL_NAMES", "make_model"),
@@ -92,12 +93,15 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.analysis.models import MODEL_NAMES, make_model
     from acquisition.analysis.plots import plot_slices, plot_sweep
     from acquisition.api.analysis import (
+        REPORT_MODELS,
         CheckReport,
+        ReportResult,
         check,
         compare,
         fit,
         median_relative_uncertainty,
         open_table,
+        report,
     )
     from acquisition.api.demo import DemoResult, run_demo
     from acquisition.api.sessions import (

@@ -91,3 +91,84 @@ def compare(a: str | Path | IsotropicTable, b: str | Path | IsotropicTable) -> C
     from acquisition.simworld.materials import parse_material
 
     return compare_sides(open_side(a, parse_material), open_side(b, parse_material))
+
+
+REPORT_MODELS = ("lambert", "oren-nayar", "blinn-phong", "ggx", "beckmann")
+"""Models a report fits by default."""
+
+
+@dataclass
+class ReportResult:
+    """Where the report went and what it holds."""
+
+    path: Path
+    fits: list[FitResult]
+    checks_passed: bool
+
+
+def report(source: str | Path, out: str | Path, *, models: tuple[str, ...] = REPORT_MODELS,
+           reference: str | Path | None = None, calibration: str | Path | None = None,
+           table: IsotropicTable | None = None) -> ReportResult:
+    """Write the HTML report of a table or session (:mod:`acquisition.analysis.report`).
+
+    ``reference``: a table, MERL file or material spec to compare with; by default a
+    simulated capture is compared with the material the simulated camera rendered.
+    ``table``: the session's table when the caller has just reduced it (not reduced again).
+    """
+    from acquisition.analysis.report import build_html, report_data, write_report
+    from acquisition.simworld.materials import parse_material
+
+    path = Path(source)
+    table = table if table is not None else open_table(path, calibration=calibration)
+    prov = table.provenance
+    measured: dict[str, Any] = {"source": str(path)}
+    for key in ("rig", "plan", "material", "seed", "calibration_bundle", "noise_model"):
+        if prov.get(key) is not None:
+            measured[key] = prov[key]
+    if "reference_drift_pct" in prov:
+        measured["white-reference drift"] = f"{prov['reference_drift_pct']:.3f} %"
+    warnings: list[str] = []
+    if path.is_dir():
+        measured.update(_session_lines(path, warnings))
+    fits, fit_errors = [], []
+    data = bin_data(table)
+    for name in models:
+        try:
+            fits.append(fit_model(make_model(name), data))
+        except (ConfigError, ValueError) as exc:
+            fit_errors.append(f"{name}: not fitted ({exc})")
+    spec = reference if reference is not None else prov.get("material")
+    comparison = None
+    if spec:
+        try:
+            comparison = compare_sides(open_side(table, parse_material),
+                                       open_side(spec, parse_material))
+        except ConfigError as exc:
+            warnings.append(f"comparison with {spec} skipped: {exc}")
+    title = f"BRDF report: {prov.get('plan', path.name)} on {prov.get('rig', 'a rig')}"
+    rd = report_data(table, title, measured=measured, warnings=warnings, fits=fits,
+                     fit_errors=fit_errors, comparison=comparison)
+    inputs = [path] + ([Path(reference)] if reference and Path(str(reference)).exists() else [])
+    written = write_report(build_html(rd), out, inputs=inputs)
+    return ReportResult(written, fits, not any(c.passed is False for c in rd.checks))
+
+
+def _session_lines(folder: Path, warnings: list[str]) -> dict[str, Any]:
+    """Planned vs actual time, progress and warnings of a session folder."""
+    from acquisition.session.status import session_status
+
+    status = session_status(folder, drift=False, verify=False).to_json()
+    info = status.get("info", {})
+    out: dict[str, Any] = {"steps done": f"{status.get('done')} of {status.get('total')}"}
+    if info.get("estimated_s") is not None and status.get("device_s") is not None:
+        out["rig time: planned / actual"] = (f"{info['estimated_s']:.1f} s / "
+                                            f"{status['device_s']:.1f} s")
+    for event in status.get("events", []):
+        warnings.append(" ".join(str(e) for e in event[1:]))
+    for frame in status.get("bad_frames", []):
+        warnings.append(f"bad frame: {frame}")
+    for axis, link in status.get("link", {}).items():
+        if link.get("retries") or link.get("resends"):
+            warnings.append(f"bus {axis}: {link['retries']} retries, {link['resends']} resends "
+                            f"in {link['requests']} requests")
+    return out

@@ -1,4 +1,5 @@
-"""``gonio demo``: capture on the simulated rig, reduce, plot against the truth, summarise."""
+"""``gonio demo``: capture on the simulated rig, reduce, plot against the truth, write the
+HTML report, summarise."""
 
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ class DemoResult:
     estimated_minutes: float
     median_rel_error: float
     peak_pose: tuple[float, float, float]
+    report: Path | None = None
+    """The HTML report (fits, checks, figures) of the demo's table."""
 
 
 def run_demo(
@@ -52,6 +55,9 @@ def run_demo(
     plot = plot_slices(reduction.table, truth, session / "brdf-slices.png",
                        title=f"gonio demo — {material}")
     table = reduction.table
+    from acquisition.api.analysis import report  # heavy (scipy, matplotlib): loaded here
+
+    html = report(session, session / "report.html", table=table).path
     g = np.where(table.count > 0, table.mean[..., 1], -np.inf)
     i, j, k = np.unravel_index(int(np.argmax(g)), g.shape)
     centers = table.centers()
@@ -66,4 +72,5 @@ def run_demo(
         estimated_minutes=estimate / 60,
         median_rel_error=float(np.median(relative_errors(table, truth))),
         peak_pose=(float(centers[0][i]), float(centers[1][j]), float(centers[2][k])),
+        report=html,
     )

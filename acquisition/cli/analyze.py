@@ -7,12 +7,13 @@ import argparse
 import sys
 
 from acquisition import api
-from acquisition.cli.options import add_json, report
+from acquisition.cli.options import add_json, add_out, report
 
 COMMANDS = {
     "fit": "fit an analytic BRDF model to a table or session (weighted, with 1σ)",
     "check": "check a table's physics: reciprocity, energy, coverage, SNR (exit 1 on failure)",
     "compare": "compare two tables, MERL files or material specs over their common bins",
+    "report": "write a self-contained HTML report of a table or session",
 }
 
 _MODELS = ("lambert", "oren-nayar", "phong", "blinn-phong", "ggx", "beckmann")
@@ -48,6 +49,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json(p)
     p.set_defaults(func=run_compare)
 
+    p = sub.add_parser("report", help=COMMANDS["report"])
+    p.add_argument("source", help="isotropic table (.h5) or session folder")
+    add_out(p, "report file (.html)", required=True)
+    p.add_argument("--models", default=",".join(api.REPORT_MODELS),
+                   help="models to fit, comma-separated (default: %(default)s)")
+    p.add_argument("--reference", metavar="SOURCE",
+                   help="table, MERL file or material spec to compare with (default: a "
+                        "simulated capture's material)")
+    p.add_argument("--calibration", metavar="BUNDLE",
+                   help="calibration bundle to reduce a session with")
+    add_json(p)
+    p.set_defaults(func=run_report)
+
 
 def _value(entry: dict) -> str:
     return f"{entry['value']:.6g} ± {entry['sigma']:.2g}"
@@ -58,10 +72,12 @@ def fit_lines(result: dict) -> list[str]:
     lines = [f"{result['model']} fit to {result['bins']} bins: χ²/dof {result['chi2_dof']:.3g} "
              f"({result['dof']} dof)"]
     for name, entry in result["params"].items():
+        edge = "  (at the edge of the fit box)" if name in result["at_bound"] else ""
         if "value" in entry:
-            lines.append(f"  {name:<9} {_value(entry)}")
+            lines.append(f"  {name:<9} {_value(entry)}{edge}")
         else:
-            lines.append(f"  {name:<9} " + "   ".join(f"{c} {_value(e)}" for c, e in entry.items()))
+            lines.append(f"  {name:<9} " + "   ".join(f"{c} {_value(e)}" for c, e in entry.items())
+                         + edge)
     lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in result["metrics"].items()))
     lines.append(f"material: {result['material']}")
     return lines
@@ -86,4 +102,15 @@ def run_check(args: argparse.Namespace) -> int:
 def run_compare(args: argparse.Namespace) -> int:
     result = api.compare(args.a, args.b)
     report(args, result.to_dict(), result.lines())
+    return 0
+
+
+def run_report(args: argparse.Namespace) -> int:
+    result = api.report(args.source, args.out, models=tuple(args.models.split(",")),
+                        reference=args.reference, calibration=args.calibration)
+    fits = ", ".join(f"{f.model.name} χ²/dof {f.chi2_dof:.3g}" for f in result.fits)
+    report(args, {"report": result.path, "fits": [f.to_dict() for f in result.fits],
+                  "checks_passed": result.checks_passed},
+           [f"report: {result.path}", f"fits: {fits or 'none'}",
+            "physical checks: " + ("pass" if result.checks_passed else "FAILED (see the report)")])
     return 0

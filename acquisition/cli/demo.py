@@ -9,7 +9,7 @@ from acquisition.cli.capture import eta_from_time_model
 from acquisition.cli.options import add_json, add_out, report
 from acquisition.cli.progress import step_bar
 
-COMMANDS = {"demo": "capture, reduce and plot on the simulated rig"}
+COMMANDS = {"demo": "capture, reduce, plot and report on the simulated rig"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,5 +39,6 @@ def run(args: argparse.Namespace) -> int:
         f"session         {r.session}",
         f"table           {r.table}",
         f"plot            {r.plot}",
+        f"report          {r.report}",
     ])
     return 0

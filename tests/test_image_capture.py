@@ -167,3 +167,30 @@ def test_ggx_sphere_million_samples_match_material(tmp_path: Path) -> None:
     assert sel.sum() > 20_000
     assert np.median(rel) <= 0.03
     assert abs(np.median((red.merl.mean[sel] - truth) / truth)) < 0.005  # no scale bias
+
+
+def test_image_based_table_keeps_its_merl_table_and_budget(tmp_path: Path) -> None:
+    """The .h5 of an image-based session holds the MERL half/difference table, which
+    `gonio export --format merl` writes as measured (not a nearest-bin copy); every measured
+    isotropic bin has a finite uncertainty."""
+    from acquisition.cli import main
+    from acquisition.tables.isotropic import load_merl_h5
+
+    out = tmp_path / "s"
+    rig = small_rig(tmp_path)
+    api.capture(rig, plan_file(tmp_path, [[30, 45, 180], [50, 20, 90]]), out,
+                material=GGX_SPEC, seed=3)
+    reduction = api.reduce(out, tmp_path / "t.h5")
+    kept = load_merl_h5(tmp_path / "t.h5")
+    assert kept is not None
+    np.testing.assert_array_equal(kept.count, reduction.merl.count)
+    np.testing.assert_array_equal(kept.mean, reduction.merl.mean)
+    assert main(["export", str(tmp_path / "t.h5"), "--format", "merl", "-o",
+                 str(tmp_path / "kept.binary")]) == 0
+    write_merl(tmp_path / "direct.binary", reduction.merl)
+    assert (tmp_path / "kept.binary").read_bytes() == (tmp_path / "direct.binary").read_bytes()
+    table = api.open_table(tmp_path / "t.h5")
+    measured = table.count > 0
+    assert measured.sum() > 100
+    assert np.all(np.isfinite(table.std_error[measured])) and np.all(table.std_error[measured] > 0)
+    assert table.provenance["noise_model"] == "sensor model"

@@ -394,5 +394,5 @@ def reduce(
         result: Reduction = reduce_lightstage_session(path, progress)
     else:
         result = reduce_session(session_dir, progress, bundle=calibration)
-    result.table.save_h5(out, inputs=(path,))
+    result.table.save_h5(out, inputs=(path,), merl=getattr(result, "merl", None))
     return result

@@ -27,7 +27,8 @@ from acquisition.formats.merl import (
 )
 from acquisition.formats.merl import WHAT as MERL_WHAT
 from acquisition.geometry.halfdiff import MERL_BINS, MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
-from acquisition.tables import IsotropicTable
+from acquisition.tables import IsotropicTable, MerlTable
+from acquisition.tables.isotropic import load_merl_h5
 from calibration.exr import exr_has, write_exr
 from drivers.errors import ConfigError
 from drivers.storage import atomic_output, check_folder, check_output, ensure_folder
@@ -98,10 +99,15 @@ def isotropic_to_merl(table: IsotropicTable) -> np.ndarray:
 Inputs = Iterable[str | os.PathLike[str]]
 
 
-def export_merl(table: Table, out: Path, inputs: Inputs = ()) -> int:
-    """Write a MERL binary; returns the number of MERL bins holding a value."""
+def export_merl(table: Table | MerlTable, out: Path, inputs: Inputs = ()) -> int:
+    """Write a MERL binary; returns the number of MERL bins holding a value. A MERL table
+    (an image-based session's, kept in its ``.h5``) is written as measured; an isotropic
+    table is copied onto the MERL grid by nearest bin (:func:`isotropic_to_merl`)."""
     if isinstance(table, MerlBRDF):
         write_merl(out, table, inputs=inputs)  # byte for byte what was read
+        return int(table.measured.sum())
+    if isinstance(table, MerlTable):
+        write_merl(out, table, inputs=inputs)
         return int(table.measured.sum())
     values = isotropic_to_merl(table)
     write_merl(out, values, inputs=inputs)
@@ -253,6 +259,10 @@ def export_table(
     table = load_table(src)
     measured = int(table.measured.sum()) if isinstance(table, MerlBRDF) else int((table.count > 0).sum())
     if fmt is ExportFormat.MERL:
+        merl = load_merl_h5(src) if isinstance(table, IsotropicTable) else None
+        if merl is not None:  # an image-based session's own MERL table: measured, not filled
+            n = export_merl(merl, dest, inputs)
+            return Exported(dest, fmt.value, n, n, 0)
         n = export_merl(table, dest, inputs)
         filled = 0 if isinstance(table, MerlBRDF) else n
         return Exported(dest, fmt.value, n, measured, filled)

@@ -49,7 +49,14 @@ from acquisition.formats.merl import write_merl
 from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
-from acquisition.reduction.point import Reduction, find_bundle, linearize_with_variance, session_provenance
+from acquisition.reduction.point import (
+    UNCERTAINTY_TERMS,
+    Reduction,
+    find_bundle,
+    linearize_with_variance,
+    noise_source,
+    session_provenance,
+)
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
@@ -57,8 +64,7 @@ from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable, MerlTable
 from calibration.bundle import CalibrationBundle
 from calibration.hdr import merge
-from calibration.linearize import LinearImage, linearize
-from calibration.raw import load_raw
+from calibration.linearize import LinearImage
 from drivers.errors import SessionError
 
 DEFAULT_MIN_COS = 0.02
@@ -68,12 +74,16 @@ silhouette and terminator a pixel's geometry is least certain."""
 
 @dataclass(frozen=True)
 class FrameSamples:
-    """The BRDF samples of one frame: local unit directions (N, 3) and BRDF (N, 3) in sr⁻¹."""
+    """The BRDF samples of one frame: local unit directions (N, 3) and BRDF (N, 3) in sr⁻¹,
+    with each sample's noise variance (N, 3), sr⁻², where the frame has a noise model, and the
+    relative standard uncertainty (3,) of the calibration C that scaled them."""
 
     step: int
     wi: np.ndarray
     wo: np.ndarray
     brdf: np.ndarray
+    variance: np.ndarray | None = None
+    calibration_rel: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -89,10 +99,10 @@ class ImageReduction(Reduction):
     """BRDF samples taken from the frames (before binning)."""
 
 
-def _linear(folder: SessionFolder, rec: StepRecord,
+def _linear(folder: SessionFolder, rig: RigConfig, rec: StepRecord,
             bundle: CalibrationBundle | None = None) -> LinearImage:
-    frame = load_raw(folder.frames_dir / str(rec.frame))
-    return linearize(frame) if bundle is None else bundle.linearize(frame)
+    """A frame linearized with a variance per superpixel where a noise model is known."""
+    return linearize_with_variance(folder.frames_dir / str(rec.frame), rig, bundle)
 
 
 def _merged(folder: SessionFolder, rig: RigConfig, recs: list[StepRecord],
@@ -148,15 +158,32 @@ def white_calibration(
     return signal / model, n
 
 
+def white_relative_uncertainty(image: LinearImage, geo: PixelGeometry,
+                               roi: tuple[int, int, int, int]) -> np.ndarray:
+    """Relative standard uncertainty (3,) of :func:`white_calibration`'s C from the plate
+    pixels' noise variances (NaN without a noise model)."""
+    if image.variance is None:
+        return np.full(3, np.nan)
+    x0, y0, x1, y1 = roi
+    in_roi = np.zeros(geo.mask.shape, dtype=bool)
+    in_roi[y0:y1, x0:x1] = True
+    use = (in_roi & image.valid)[geo.mask]
+    signal = image.rgb[geo.mask][use].sum(axis=0)
+    return np.sqrt(image.variance[geo.mask][use].sum(axis=0)) / signal
+
+
 def frame_samples(
     image: LinearImage, geo: PixelGeometry, calibration: np.ndarray, step: int,
-    min_cos: float = DEFAULT_MIN_COS,
+    min_cos: float = DEFAULT_MIN_COS, calibration_rel: np.ndarray | None = None,
 ) -> FrameSamples:
-    """BRDF samples f = P / (C · cos θi / r²) of a frame's valid pixels on the sample."""
+    """BRDF samples f = P / (C · cos θi / r²) of a frame's valid pixels on the sample, with
+    their noise variance var P / (C · cos θi / r²)² where the image has one."""
     keep = image.valid[geo.mask] & (geo.wi[:, 2] >= min_cos) & (geo.wo[:, 2] >= min_cos)
     rgb = image.rgb[geo.mask][keep]
-    brdf = rgb / (geo.irradiance[keep][:, None] * calibration)
-    return FrameSamples(step, geo.wi[keep], geo.wo[keep], brdf)
+    scale = geo.irradiance[keep][:, None] * calibration
+    variance = None if image.variance is None else image.variance[geo.mask][keep] / scale**2
+    return FrameSamples(step, geo.wi[keep], geo.wo[keep], rgb / scale, variance,
+                        calibration_rel)
 
 
 def iter_session_samples(
@@ -184,9 +211,9 @@ def iter_session_samples(
         raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
     rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
     check = FrameCheck(folder.path)
-    steps, cals = [], []
+    steps, cals, rels = [], [], []
     for rec in (r for r in records if r.kind == REFERENCE):
-        image = check.load(rec.frame, lambda rec=rec: _linear(folder, rec, cb))
+        image = check.load(rec.frame, lambda rec=rec: _linear(folder, rig, rec, cb))
         if image is None:
             continue
         geo = _geometry(rig, rec, image.valid.shape, "flat")
@@ -198,22 +225,26 @@ def iter_session_samples(
             )
         steps.append(rec.step)
         cals.append(cal)
+        rels.append(white_relative_uncertainty(image, geo, rig.camera.roi))
     if not cals:
         check.raise_if_any()
         raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
     ref_steps, ref_cals = np.array(steps, float), np.array(cals)
+    ref_vars = (np.array(rels) * ref_cals) ** 2
+    eye = np.eye(len(steps))
     if drift is not None:
         drift.append(float(np.max(np.ptp(ref_cals, axis=0) / np.mean(ref_cals, axis=0)) * 100.0))
     for recs in sample_frames(records, complete)[:max_frames]:
         rec = recs[0]
         plain = len(recs) == 1 and hdr_group(rec.note) is None
         image = check.load(rec.frame, lambda recs=recs, rec=rec, plain=plain: (
-            _linear(folder, rec, cb) if plain else _merged(folder, rig, recs, cb)))
+            _linear(folder, rig, rec, cb) if plain else _merged(folder, rig, recs, cb)))
         if image is None:
             continue
         geo = _geometry(rig, rec, image.valid.shape)
         cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
-        yield frame_samples(image, geo, cal, rec.step, min_cos)
+        w = np.array([np.interp(rec.step, ref_steps, eye[k]) for k in range(len(steps))])
+        yield frame_samples(image, geo, cal, rec.step, min_cos, np.sqrt(w**2 @ ref_vars) / cal)
     check.raise_if_any()
 
 
@@ -225,7 +256,13 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
     for fs in frames:
         merl.add_vectors(fs.wi, fs.wo, fs.brdf)
         angles = poses_from_directions(fs.wi, fs.wo)
-        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf)
+        budget = {}
+        if table.tracks_uncertainty:
+            nan = np.full(fs.brdf.shape, np.nan)
+            rel = np.full(3, np.nan) if fs.calibration_rel is None else fs.calibration_rel
+            budget = {"variances": {"noise": nan if fs.variance is None else fs.variance},
+                      "uncertainties": {"white_reference": np.abs(fs.brdf) * rel}}
+        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf, **budget)
         samples += fs.count
         count += 1
         if progress:
@@ -276,6 +313,8 @@ def reduce_image_session(
         provenance["calibration_bundle"] = str(cal.path.resolve())
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance=provenance)
+    table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+    table.track_uncertainty(*UNCERTAINTY_TERMS)
     merl = MerlTable(provenance)
     drift: list[float] = []
     samples, frames = bin_frames(

@@ -20,6 +20,9 @@ mean_delta_phi_deg float64 [Ni,Nr,Nφ]  mean Δφ as binned (folded or wrapped),
 uncertainty/NAME   float64 [Ni,Nr,Nφ,3]  one term of the budget, sr⁻¹ (v2), with attributes
                    ``correlated`` (common to the bins, e.g. the white reference) and
                    ``description``
+merl/count         int64 [90,90,180]  optional (image-based sessions): the MERL
+merl/mean          float64 [90,90,180,3]  half/difference table reduced beside the isotropic
+merl/variance      float64 [90,90,180,3]  one (gzip-compressed), sr⁻¹; NaN where empty
 @units             "1/sr"
 @quantity          "brdf"
 @channels          "R,G,B"
@@ -50,6 +53,7 @@ from acquisition.tables.accumulator import (
 )
 from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.backend import kernels
+from acquisition.tables.merl_table import MerlTable
 from acquisition.tables.uncertainty import (
     Term,
     UncertaintySums,
@@ -372,7 +376,7 @@ class IsotropicTable(TableStatistics):
     # ------------------------------------------------------------------ HDF5
     def save_h5(
         self, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None, *,
-        inputs: Iterable[str | os.PathLike[str]] = (),
+        inputs: Iterable[str | os.PathLike[str]] = (), merl: MerlTable | None = None,
     ) -> None:
         """Write the table through :func:`drivers.storage.atomic_output` (temporary file in the
         same folder, re-opened with h5py, fsync, rename).
@@ -380,11 +384,19 @@ class IsotropicTable(TableStatistics):
         ``provenance`` (default: :attr:`provenance`) is stored as a JSON string attribute. An
         existing table may be replaced; any other existing file, and ``inputs``, are refused
         (:class:`OutputRefused`). Raises :class:`StorageError` when the file cannot be written.
+        ``merl``: a MERL half/difference table reduced from the same samples, kept in the file
+        (``merl/``; :func:`load_merl_h5` reads it back).
         """
         path = Path(path)
         prov = json.dumps(dict(self.provenance if provenance is None else provenance))
         with atomic_output(path, what=WHAT, verify=_verify_table(self.shape), ours=is_table_file,
                            inputs=inputs) as tmp, h5py.File(tmp, "w") as f:
+            if merl is not None:
+                group = f.create_group("merl")
+                for name, data in (("count", merl.count), ("mean", merl.mean),
+                                   ("variance", merl.variance)):
+                    group.create_dataset(name, data=data, compression="gzip",
+                                         compression_opts=4, shuffle=True)
             f.create_dataset("theta_i_edges", data=self.theta_i_edges)
             f.create_dataset("theta_r_edges", data=self.theta_r_edges)
             f.create_dataset("delta_phi_edges", data=self.delta_phi_edges)
@@ -498,6 +510,18 @@ class IsotropicTable(TableStatistics):
                 raise ConfigError(
                     f"cannot merge tables: {name} differ; bin both with the same edges"
                 )
+
+
+def load_merl_h5(path: str | os.PathLike[str]) -> MerlTable | None:
+    """The MERL table a ``gonio-isotropic-brdf`` file holds beside its isotropic one (image-based
+    sessions), or None."""
+    with h5py.File(path, "r") as f:
+        if "merl" not in f:
+            return None
+        g = f["merl"]
+        prov = _attr_str(f.attrs.get("provenance")) or "{}"
+        return MerlTable.from_statistics(g["count"][()], g["mean"][()], g["variance"][()],
+                                         json.loads(prov))
 
 
 def _read_uncertainty(f: h5py.File, path: Path

@@ -209,6 +209,17 @@ class MerlTable(TableStatistics):
         """Bin edges (θh, θd, φd) in degrees."""
         return merl_bin_edges()
 
+    @classmethod
+    def from_statistics(cls, count: np.ndarray, mean: np.ndarray, variance: np.ndarray,
+                        provenance: Mapping[str, Any] | None = None) -> MerlTable:
+        """A table rebuilt from stored count, mean and variance (as a file holds them)."""
+        table = cls(provenance)
+        if np.shape(count) != MERL_SHAPE or np.shape(mean) != MERL_SHAPE + (3,):
+            raise ConfigError(f"MERL statistics must be shaped {MERL_SHAPE} (+ RGB), got "
+                              f"{np.shape(count)} and {np.shape(mean)}")
+        table._acc = BinAccumulator.from_statistics(count, mean, variance, backend=table.backend)
+        return table
+
 
 # ---------------------------------------------------------------------------- numpy backend
 def _index_vectors(wi: np.ndarray, wo: np.ndarray, flat: np.ndarray) -> bool:

@@ -1,4 +1,5 @@
-"""Shared fixtures: example files, the external validation data folder."""
+"""Shared fixtures: example files, the external validation data folder; the collision referee
+(:mod:`referee`) for every test."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
+from referee import SIM_COLLISION_EVENT, pytest_runtest_makereport  # noqa: F401  (the referee)
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
@@ -95,12 +97,12 @@ _STARTED_BUSES: list = []
 
 
 @pytest.fixture(autouse=True)
-def no_unexpected_collision(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch):
-    """Fail any test whose simulated arms touched, unless it is marked
-    ``@pytest.mark.collides`` (it drives them into each other on purpose).
+def record_started_buses(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Keep every simulated bus built during the test for the ``sims`` fixture.
 
-    Records every simulated bus started during the test (the ``sims`` fixture) and, after it,
-    asks each for the collisions its own model of the arms saw.
+    Whether the simulated arms collided is the referee's business (:mod:`referee`, loaded
+    below): it sees every bus of the process, also those of module- and session-scoped
+    fixtures.
     """
     from simulators.dynamixel import bus as bus_mod
 
@@ -112,13 +114,16 @@ def no_unexpected_collision(request: pytest.FixtureRequest, monkeypatch: pytest.
         _STARTED_BUSES.append(self)
 
     monkeypatch.setattr(bus_mod.SimServoBus, "__init__", recording_init)
-    yield
-    if request.node.get_closest_marker("collides"):
-        return
-    seen = {id(c): c for bus in _STARTED_BUSES for c in bus.sim_collisions()}
-    if seen:
-        pytest.fail("the simulated arms collided: " + "; ".join(map(str, seen.values())),
-                    pytrace=False)
+
+
+def assert_no_sim_collision(session: Path) -> None:
+    """The session's journal records no contact of the simulated arms (a capture that ran in
+    a child process, out of the referee's sight)."""
+    from acquisition import api
+
+    hits = [e[3] for e in api.session_status(session, drift=False).events
+            if SIM_COLLISION_EVENT in e[3]]
+    assert not hits, f"{session}: {hits}"
 
 
 # ---------------------------------------------------------------------------- outputs

@@ -62,7 +62,8 @@ def test_plan_errors(plan_quick_path: Path, tmp_path: Path, old: str, new: str, 
 @pytest.mark.parametrize(
     ("spec", "match"),
     [
-        ("phong:n=10", "unknown material"),
+        ("torrance:n=10", "unknown material"),
+            ("phong:n=10", r"takes albedo, e, ks .*unknown: n; missing: albedo, e, ks"),
         ("lambert:albedo=x", "not a number"),
         ("ggx:albedo=0.2,alpha=0.3", "missing: f0"),
         ("lambert:albedo=2", r"\[0, 1\]"),

@@ -12,9 +12,11 @@ import signal
 import subprocess
 import sys
 import time
+import tty
 from pathlib import Path
 
 import pytest
+from referee import SIM_COLLISION_LOG
 
 from acquisition.cli import main
 from acquisition.cli.shell import ConsoleShell, history_path, readline_history
@@ -196,6 +198,7 @@ def test_a_real_pipe_is_read_as_a_script(tmp_path: Path) -> None:
         env={**os.environ, "XDG_STATE_HOME": str(tmp_path / "state")},
     )
     assert out.returncode == 0, out.stderr
+    assert SIM_COLLISION_LOG not in out.stderr  # the child's simulator saw no contact
     lines = out.stdout.splitlines()
     assert lines[0] == "camera_phi 10.02°  (read back)"
     assert float(status_rows(out.stdout)["camera_phi"][2]) == pytest.approx(10.0, abs=TICK_DEG)
@@ -203,21 +206,63 @@ def test_a_real_pipe_is_read_as_a_script(tmp_path: Path) -> None:
     assert not (tmp_path / "state").exists()  # no history for a script
 
 
-def _read_until(fd: int, needle: bytes, timeout_s: float = 60.0) -> bytes:
-    seen = b""
-    deadline = time.monotonic() + timeout_s
-    while needle not in seen:
-        left = deadline - time.monotonic()
-        if left <= 0 or not select.select([fd], [], [], left)[0]:
-            raise AssertionError(f"never saw {needle!r} in {seen!r}")
-        try:
-            chunk = os.read(fd, 4096)
-        except OSError:
-            break
-        if not chunk:
-            break
-        seen += chunk
-    return seen
+class PtyReader:
+    """Reads a pty's primary side up to a marker, keeping what came after it for the next
+    read: the child may write its reply and the next prompt in one burst, and one ``os.read``
+    then returns both (dropping the rest would lose the prompt the next read waits for)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.pending = b""
+        self.log = b""
+        """Everything read so far."""
+
+    def until(self, needle: bytes, timeout_s: float = 60.0) -> bytes:
+        """Everything up to and including the first ``needle`` not read before."""
+        deadline = time.monotonic() + timeout_s
+        while needle not in self.pending:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([self.fd], [], [], left)[0]:
+                raise AssertionError(f"never saw {needle!r} in {self.pending!r}")
+            try:
+                chunk = os.read(self.fd, 4096)
+            except OSError:  # the child closed the terminal
+                chunk = b""
+            if not chunk:
+                raise AssertionError(f"the terminal closed before {needle!r}: {self.pending!r}")
+            self.pending += chunk
+            self.log += chunk
+        end = self.pending.index(needle) + len(needle)
+        seen, self.pending = self.pending[:end], self.pending[end:]
+        return seen
+
+    def rest(self, timeout_s: float = 10.0) -> bytes:
+        """Everything until the child closes the terminal."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and select.select([self.fd], [], [], 0.1)[0]:
+            try:
+                chunk = os.read(self.fd, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            self.pending += chunk
+            self.log += chunk
+        rest, self.pending = self.pending, b""
+        return rest
+
+
+def test_a_pty_reader_keeps_what_follows_the_marker() -> None:
+    primary, secondary = os.openpty()
+    try:
+        tty.setraw(secondary)
+        os.write(secondary, b"camera_phi 10.02\xc2\xb0  (read back)\r\ngonio> ")  # one burst
+        reader = PtyReader(primary)
+        assert reader.until(b"(read back)").endswith(b"(read back)")
+        assert reader.until(b"gonio> ", timeout_s=1.0) == b"\r\ngonio> "
+    finally:
+        os.close(primary)
+        os.close(secondary)
 
 
 def test_at_a_terminal_it_prompts_completes_and_keeps_history(tmp_path: Path) -> None:
@@ -229,19 +274,22 @@ def test_at_a_terminal_it_prompts_completes_and_keeps_history(tmp_path: Path) ->
         env={**os.environ, "XDG_STATE_HOME": str(state), "TERM": "dumb"},
     )
     os.close(secondary)
+    reader = PtyReader(primary)
     try:
-        _read_until(primary, b"gonio> ")
+        reader.until(b"gonio> ")
         os.write(primary, b"jog camera_p\t 10\r")  # tab completes the axis name
-        assert b"camera_phi 10.02" in _read_until(primary, b"(read back)")
-        _read_until(primary, b"gonio> ")
+        assert b"camera_phi 10.02" in reader.until(b"(read back)")
+        reader.until(b"gonio> ")
         os.write(primary, b"quit\r")
         assert proc.wait(timeout=60) == 0
+        reader.rest()
     finally:
         if proc.poll() is None:
             proc.kill()
         os.close(primary)
     history = (state / "gonio" / "console_history").read_text()
     assert "jog camera_phi 10" in history and "quit" in history
+    assert SIM_COLLISION_LOG.encode() not in reader.log  # nor did this child's simulator
 
 
 def test_history_tolerates_an_unwritable_home(tmp_path: Path,

@@ -16,6 +16,8 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -701,11 +703,31 @@ def test_true_position_is_continuous_between_ticks(sim, port, clock):
 # ---------------------------------------------------------------- unmodified example programs
 # The ROBOTIS example scripts read keys with getch() from a terminal (tty.setraw on stdin), so a
 # test runs them with a pty as stdin, waits for each "Press any key" prompt and types a key, then
-# ESC. Only the DEVICENAME line is changed. The scripts are not vendored: set
-# GONIO_DXL_EXAMPLES to a local DynamixelSDK/python/tests/protocol2_0 directory to run them;
-# the harness itself is always exercised on a small script written in the same style.
+# ESC. Only the DEVICENAME line is changed: it names the device path `gonio sim servos --ids 1,2`
+# prints first (the command itself, in a child process, as a user would run it). The scripts are
+# not vendored: set GONIO_DXL_EXAMPLES to a local DynamixelSDK/python/tests/protocol2_0
+# directory to run them; the harness and the command are always exercised on a small script
+# written in the same style.
 EXAMPLES_DIR = os.environ.get("GONIO_DXL_EXAMPLES")
 PROMPT = b"Press any key to continue!"
+GONIO = Path(sys.executable).with_name("gonio")
+
+
+@contextmanager
+def gonio_sim_servos(*args: str) -> Iterator[str]:
+    """Run ``gonio sim servos ARGS`` in a child process; yield the device path it prints
+    first; stop it with SIGTERM (it must exit 0)."""
+    proc = subprocess.Popen([str(GONIO), "sim", "servos", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        path = proc.stdout.readline().strip()  # type: ignore[union-attr]
+        assert path.startswith("/dev/"), proc.stderr.read() if proc.poll() is not None else path
+        yield path
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0, proc.stderr.read()  # type: ignore[union-attr]
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
 
 STYLE_SCRIPT = '''\
 import sys, tty, termios
@@ -770,17 +792,19 @@ def run_example(source: str, device: str, tmp_path, presses: int = 3,
     return out.decode()
 
 
-def test_example_harness_drives_a_getch_script(tmp_path):
-    with SimServoBus([1, 2], baud=57600) as sim:
-        out = run_example(STYLE_SCRIPT, sim.port, tmp_path, presses=3)
+def test_example_harness_drives_a_getch_script_against_gonio_sim_servos(tmp_path):
+    with gonio_sim_servos("--ids", "1,2") as device:
+        out = run_example(STYLE_SCRIPT, device, tmp_path, presses=3)
     assert out.count("[ID:002] LED:") == 3  # three key presses, then ESC ended it
+    assert "[ID:002] LED:1 [TxRxResult] Communication success" in out
 
 
 @pytest.mark.skipif(not EXAMPLES_DIR, reason="set GONIO_DXL_EXAMPLES to the SDK's examples")
 @pytest.mark.parametrize("name", ["ping", "read_write", "sync_read_write", "bulk_read_write"])
 def test_robotis_example_runs_unchanged(name, tmp_path):
     source = (Path(EXAMPLES_DIR) / f"{name}.py").read_text()
-    with SimServoBus([1, 2], baud=57600, clock=SimClock(20.0)) as sim:
-        out = run_example(source, sim.port, tmp_path, presses=3)
+    # The command as documented; --time-scale only makes the servos' moves 20 × shorter.
+    with gonio_sim_servos("--ids", "1,2", "--time-scale", "20") as device:
+        out = run_example(source, device, tmp_path, presses=3)
     assert "Succeeded to open the port" in out and "Failed" not in out
     assert "[RxPacketError]" not in out and "[TxRxResult]" not in out

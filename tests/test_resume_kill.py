@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import grid_plan_text
+from conftest import assert_no_sim_collision, grid_plan_text
+from referee import SIM_COLLISION_LOG
 
 from acquisition import api
 from acquisition.session.folder import JOURNAL_FILE, frame_name
@@ -81,6 +82,9 @@ def _kill_capture(rig: Path, plan: Path, out: Path, at_done: int, want_partial: 
         proc.wait(timeout=30)
     err = proc.stderr.read().decode() if proc.stderr else ""
     assert proc.returncode == -signal.SIGKILL, f"capture ended before the kill: {err}"
+    # Out of the referee's sight (another process, killed before it could journal anything):
+    # its simulator warns on stderr when the arms touch.
+    assert SIM_COLLISION_LOG not in err, err
     # The frame seen mid-write may still have been renamed before the kill landed (a loaded
     # host): what counts is a half-written frame left behind.
     return caught_partial and any(is_partial(n) for n in os.listdir(out / "frames"))
@@ -110,6 +114,7 @@ def test_sigkill_then_resume_gives_identical_table(
         rotted.write_bytes(bytes(data))
 
     api.resume(out)
+    assert_no_sim_collision(out)
 
     with Journal(out / JOURNAL_FILE) as j:
         after = list(j.steps())

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncWrite, PacketHandler, PortHandler
+from referee import SIM_COLLISION_LOG
 
 PH = PacketHandler(2.0)
 TORQUE, GOAL, MOVING, POSITION, HW_ERROR = 64, 116, 122, 132, 70
@@ -22,7 +23,10 @@ GONIO = Path(sys.executable).with_name("gonio")
 
 
 @pytest.fixture
-def served() -> Iterator[PortHandler]:
+def served(request: pytest.FixtureRequest) -> Iterator[PortHandler]:
+    """The served rig's port; afterwards its stderr must show a contact of the arms (the
+    simulator's warning) exactly when the test is marked ``collides`` (the child process is
+    out of the referee's sight)."""
     proc = subprocess.Popen([str(GONIO), "sim", "servos", "--rig", str(EXAMPLES / "rig-sim.toml"),
                              "--time-scale", "10", "--stall-trip-s", "0.5"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -38,6 +42,8 @@ def served() -> Iterator[PortHandler]:
     finally:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
+    err = proc.stderr.read()  # type: ignore[union-attr]
+    assert (SIM_COLLISION_LOG in err) == bool(request.node.get_closest_marker("collides")), err
 
 
 def _ok(reply: tuple) -> tuple:
@@ -64,6 +70,7 @@ def _goals(port: PortHandler, goals: dict[int, float], zero: dict[int, int]) -> 
 ZERO = {1: 2048, 2: 1024, 3: 2048}  # the rig file's zero_tick per servo
 
 
+@pytest.mark.collides
 def test_driving_the_light_arm_into_the_camera_stalls_and_trips(served: PortHandler) -> None:
     port = served
     _goals(port, {1: 60.0}, ZERO)  # camera parked at θ 45°, φ 0°: the light sweeps into it

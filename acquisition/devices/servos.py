@@ -30,11 +30,12 @@ from drivers.dynamixel import (
     COMMON_BAUD_RATES,
     Axis,
     MotionController,
+    PartialMoveError,
     ServoBus,
 )
 from drivers.dynamixel.bus import Addr
 from drivers.dynamixel.latency import SYSFS_USB_SERIAL, latency_warning
-from drivers.errors import ConfigError
+from drivers.errors import CollisionError, ConfigError, LimitError
 
 if TYPE_CHECKING:
     from simulators.clock import SimClock
@@ -131,24 +132,56 @@ RouteNotice = Callable[[list[dict[str, float]]], None]
 """Told the legs (joints, deg) of a move before it starts, when it has via points."""
 
 
+MAX_REPLANS = 3
+"""Re-plans of one move after partial moves (each needs another lost goal write)."""
+
+
 def routed_move(motion: MotionController, planner: Planner, joints: Mapping[str, float],
                 on_route: RouteNotice | None = None) -> dict[str, float]:
     """Move to ``joints`` from where the axes stand: directly when that is safe, else through
     the planner's via points (``on_route`` is told them first); every leg passes the motion
-    guard. Returns the read-back degrees of every axis.
+    guard. After a partial move (a servo missed the goal write, the others moved alone, every
+    axis stopped) that the guard will not finish as sent, the move is routed again from the
+    read-back pose (``on_route`` is told the new legs) and goes on. Returns the read-back
+    degrees of every axis.
 
     Raises
     ------
     LimitError, CollisionError
-        The target is unsafe, or no route reaches it (one line; nothing moved).
+        The target is unsafe, or no route reaches it (one line; nothing moved) — also from
+        where a partial move stopped (the line says so; the axes stay there).
     """
     where = motion.where_deg()
-    legs = planner.route(where, {**where, **joints})
+    target = {**where, **joints}
+    legs = planner.route(where, target)
     if on_route is not None and len(legs) > 1:
         on_route(legs)
-    for leg in legs:
-        motion.move_to(leg)
-    return motion.where_deg()
+    replans = 0
+    while True:
+        try:
+            for leg in legs:
+                motion.move_to(leg)
+            return motion.where_deg()
+        except PartialMoveError as exc:
+            replans += 1
+            if replans > MAX_REPLANS:
+                raise
+            legs = _replan(planner, exc, target)
+            if on_route is not None and len(legs) > 1:
+                on_route(legs)
+
+
+def _replan(planner: Planner, partial: PartialMoveError, target: Mapping[str, float]
+            ) -> list[dict[str, float]]:
+    """The route from where a partial move stopped to ``target``, or one line saying that
+    there is none (from :meth:`Planner.route`)."""
+    try:
+        return planner.route(partial.readback, target)
+    except (LimitError, CollisionError) as exc:
+        at = ", ".join(f"{n} {v:.1f}°" for n, v in partial.readback.items())
+        kind = CollisionError if isinstance(exc, CollisionError) else LimitError
+        raise kind(f"after a partial move ({', '.join(partial.lost)} missed the goal write; "
+                   f"all axes stopped at {at}): {exc}") from None
 
 
 def require_servos(bus: ServoBus, rig: RigConfig, bus_name: str) -> None:

@@ -23,6 +23,7 @@ same rule.
 from __future__ import annotations
 
 import itertools
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -38,6 +39,9 @@ MOVING_DEG = 1e-6
 """An axis whose target differs from its start by more than this moves (deg)."""
 LATTICE_STEP_DEG = 10.0
 """Spacing of the routing lattice over the arm joints (deg)."""
+MEMO_SIZE = 16
+"""Single moves whose verdict :meth:`PathChecker.safe` remembers (a move is routed, then
+checked again by the guard before it is sent)."""
 
 
 def axis_subsets(moving: Sequence[int]) -> list[tuple[int, ...]]:
@@ -60,6 +64,8 @@ class PathProblem:
     """Clearance left there (m, negative: short of the clearance by that much)."""
     partial: bool
     """The problem arises only if some of the axes miss the sync write."""
+    others: tuple[str, ...] = ()
+    """The move's other moving axes (those that missed the sync write when ``partial``)."""
 
 
 class PathChecker:
@@ -88,6 +94,8 @@ class PathChecker:
         self.duration_s = duration_s
         self.reach_m = float(reach_m)
         self.arm_joints = np.asarray(arm_joints, dtype=int)
+        self._memo: dict[tuple[bytes, bytes], bool] = {}
+        self._memo_lock = threading.Lock()
 
     # -- one set of moves ---------------------------------------------------------------
     def min_gap(self, a: np.ndarray, b: np.ndarray, floor: np.ndarray | float = 0.0
@@ -186,19 +194,39 @@ class PathChecker:
         ok, _ = self.min_gap(np.concatenate(rows), np.concatenate(ends), floor[own])
         return np.bincount(own[~ok], minlength=m) == 0
 
-    def problem(self, a: np.ndarray, b: np.ndarray, names: Sequence[str]) -> PathProblem | None:
-        """Why the move a → b (J,) is refused, or None when it is safe."""
+    def safe(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """:meth:`move_safe` of the one move a → b (J,), remembering the last
+        :data:`MEMO_SIZE` verdicts."""
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        floor = min(float(self.gap_m(a[None])[0]), 0.0)
+        key = (a.tobytes(), b.tobytes())
+        with self._memo_lock:
+            known = self._memo.get(key)
+        if known is not None:
+            return known
+        verdict = bool(self.move_safe(a[None], b[None])[0])
+        with self._memo_lock:
+            self._memo[key] = verdict
+            while len(self._memo) > MEMO_SIZE:
+                del self._memo[next(iter(self._memo))]
+        return verdict
+
+    def problem(self, a: np.ndarray, b: np.ndarray, names: Sequence[str]) -> PathProblem | None:
+        """Why the move a → b (J,) is refused, or None when it is safe (one vectorised check
+        first; the subsets one by one only to word a refusal)."""
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         moving = [j for j in range(len(a)) if abs(b[j] - a[j]) > MOVING_DEG]
-        for k, sub in enumerate(axis_subsets(moving) if moving else []):
+        if not moving or self.safe(a, b):
+            return None
+        floor = min(float(self.gap_m(a[None])[0]), 0.0)
+        for k, sub in enumerate(axis_subsets(moving)):
             end = a.copy()
             end[list(sub)] = b[list(sub)]
             ok, at = self.min_gap(a[None], end[None], floor)
             if not ok[0]:
                 return PathProblem(tuple(names[j] for j in sub),
                                    {n: float(v) for n, v in zip(names, at[0], strict=True)},
-                                   float(self.gap_m(at)[0]), partial=k > 0)
+                                   float(self.gap_m(at)[0]), partial=k > 0,
+                                   others=tuple(names[j] for j in moving if j not in sub))
         return None
 
 
@@ -225,7 +253,7 @@ class Router:
         """Joints of the legs' ends from a to b (via points, then b), or None when no route
         exists on the lattice. A safe direct move is returned as ``[b]``."""
         a, b = np.asarray(a, float), np.asarray(b, float)
-        if self.checker.move_safe(a[None], b[None])[0]:
+        if self.checker.safe(a, b):
             return [b]
         nodes, graph = self._lattice(a)
         path = self._search(a, b, nodes, graph)
@@ -360,14 +388,13 @@ class Router:
 
 
 def route_or_raise(router: Router, a: Mapping[str, float], b: Mapping[str, float],
-                   names: Sequence[str], describe: Callable[[PathProblem], str]) -> list[dict[str, float]]:
-    """Legs from ``a`` to ``b`` as joint dicts, or :class:`CollisionError` with one line when
-    no route exists inside the limits (``describe`` words the direct move's problem)."""
+                   names: Sequence[str], refuse: Callable[[PathProblem | None], str]
+                   ) -> list[dict[str, float]]:
+    """Legs from ``a`` to ``b`` as joint dicts, or :class:`CollisionError` with the one line
+    ``refuse`` words from the direct move's problem when no route exists inside the limits."""
     va = np.array([a[n] for n in names], float)
     vb = np.array([b[n] for n in names], float)
     legs = router.route(va, vb)
     if legs is None:
-        problem = router.checker.problem(va, vb, names)
-        why = describe(problem) if problem is not None else "no safe route"
-        raise CollisionError(f"refused move: {why}; no route round it inside the joint limits")
+        raise CollisionError(refuse(router.checker.problem(va, vb, names)))
     return [{n: float(v) for n, v in zip(names, leg, strict=True)} for leg in legs]

@@ -1,8 +1,13 @@
 """The motion planner: which candidate poses are safe and useful, their order, and the ETA.
 
 Every pose is checked against the rig's constraints and kept or rejected with a named
-:class:`Reason`. :meth:`Planner.check_joints` is also the guard the motion controller calls
-before *every* move, so nothing reaches a servo that the planner has not checked.
+:class:`Reason`. :meth:`Planner.check_move` is the motion guard (the
+:class:`~drivers.dynamixel.motion.MotionGuard` the motion controller calls before *every* goal
+it sends, braking included): the target's limits and clearance (:meth:`Planner.check_joints`,
+which checks a target alone) and the move's whole swept path, also for every subset of the
+axes moving alone (a sync write one servo missed). :meth:`Planner.route` finds via points
+round the other arm when the direct move is refused. So nothing reaches a servo that the
+planner has not checked.
 
 Constraints (in the order a rejection reports them):
 
@@ -29,6 +34,7 @@ the white-reference captures the session interleaves.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -45,8 +51,15 @@ from acquisition.geometry.kinematics.base import (
     directions_from_poses,
     wrap_deg_array,
 )
-from acquisition.planning import ordering
-from acquisition.planning.paths import PathChecker, PathProblem, Router, route_or_raise
+from acquisition.planning import ordering, refusals
+from acquisition.planning.paths import (
+    MEMO_SIZE,
+    MOVING_DEG,
+    PathChecker,
+    PathProblem,
+    Router,
+    route_or_raise,
+)
 from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
 from drivers.errors import CollisionError, LimitError
 
@@ -138,8 +151,10 @@ class Sweep:
         }
 
 
-def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Shortest distance between segments p1–q1 and p2–q2 (…, 3), vectorised."""
+def segment_params(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where segments p1–q1 and p2–q2 (…, 3) come closest: the fractions (s, t) ∈ [0, 1] along
+    each, vectorised."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a = np.sum(d1 * d1, -1)
     e = np.sum(d2 * d2, -1)
@@ -153,7 +168,13 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
         s = np.where(t < 0, np.where(a > 1e-15, np.clip(-c / a, 0, 1), 0.0), s)
         s = np.where(t > 1, np.where(a > 1e-15, np.clip((b - c) / a, 0, 1), 0.0), s)
         t = np.clip(t, 0.0, 1.0)
-    gap = (p1 + d1 * s[..., None]) - (p2 + d2 * t[..., None])
+    return s, t
+
+
+def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Shortest distance between segments p1–q1 and p2–q2 (…, 3), vectorised."""
+    s, t = segment_params(p1, q1, p2, q2)
+    gap = (p1 + (q1 - p1) * s[..., None]) - (p2 + (q2 - p2) * t[..., None])
     return np.linalg.norm(gap, axis=-1)
 
 
@@ -212,6 +233,8 @@ class Planner:
         if bound not in BOUNDS:
             raise ValueError(f"bound must be one of {', '.join(BOUNDS)}, got {bound!r}")
         self.bound = bound
+        self._target_memo: dict[tuple[object, ...], Rejection | None] = {}
+        self._memo_lock = threading.Lock()
         self.arms: ArmsConfig = rig.arms or ArmsConfig(
             ArmConfig(0.0, rig.light_distance_m, rig.light_distance_m),
             ArmConfig(0.0, rig.camera_distance_m, rig.camera_distance_m), DEFAULT_CLEARANCE_M)
@@ -442,42 +465,95 @@ class Planner:
             return Rejection(pose, Reason.SHADOW, detail)
         return None
 
-    def check_joints(self, joints: Mapping[str, float]) -> None:
-        """Guard for every move: raise unless the joint targets pass every safety constraint."""
+    def check_joints(self, joints: Mapping[str, float], moving: Sequence[str] | None = None
+                     ) -> None:
+        """The target part of the guard (:meth:`check_move`): raise unless the joint targets
+        pass every safety constraint, in one line naming the axes (``moving``: those the move
+        turns; all by default), where the arms would meet and what to do."""
         missing = [n for n in self.kinematics.joint_names if n not in joints]
         if missing:
             raise LimitError(f"move names no target for {', '.join(missing)}: give every axis a target")
-        problem = self.joint_problem(joints)
+        problem = self._remembered_problem(joints)
         if problem is None:
             return
         err = CollisionError if problem.reason in SAFETY_REASONS else LimitError
-        raise err(f"refused move: {problem.detail}")
+        raise err(self._target_refusal(problem, joints, moving))
+
+    def _remembered_problem(self, joints: Mapping[str, float]) -> Rejection | None:
+        """:meth:`joint_problem`, remembering the last :data:`MEMO_SIZE` targets (a session
+        step's target is checked when planned, routed and sent)."""
+        key = (tuple(float(joints[n]) for n in self.kinematics.joint_names),
+               self.max_elevation_deg, self.shadow_cone_deg, self.arms)
+        with self._memo_lock:
+            if key in self._target_memo:
+                return self._target_memo[key]
+        problem = self.joint_problem(joints)
+        with self._memo_lock:
+            self._target_memo[key] = problem
+            while len(self._target_memo) > MEMO_SIZE:
+                del self._target_memo[next(iter(self._target_memo))]
+        return problem
+
+    def _target_refusal(self, problem: Rejection, joints: Mapping[str, float],
+                        moving: Sequence[str] | None) -> str:
+        names = self.kinematics.joint_names
+        axes = list(moving) if moving else list(names)
+        at = {n: float(joints[n]) for n in names}
+        if problem.reason is Reason.JOINT_LIMITS:
+            limits = self.kinematics.limits
+            return refusals.limits([n for n in names if not limits[n].contains(at[n])],
+                                   self.kinematics.violated_limits(at))
+        if problem.reason is Reason.MAX_ELEVATION:
+            return refusals.elevation(axes, problem.pose.theta_i, problem.pose.theta_r,
+                                      self.max_elevation_deg)
+        if problem.reason is Reason.ARM_COLLISION:
+            return refusals.target_collision(axes, at, self.arm_meeting(at), self.arms.clearance_m)
+        light, camera = self.kinematics.forward_array(self.kinematics.to_array(at)[None])
+        return refusals.shadow(axes, at, float(angle_between_deg_array(light, camera)[0]),
+                               self.shadow_cone_deg)
+
+    def arm_meeting(self, joints: Mapping[str, float]) -> refusals.Meeting:
+        """Where the arms' capsules come closest at ``joints``: the clearance left there (m)
+        and the distance of each closest point from the sample centre along its arm (m)."""
+        arr = self.kinematics.to_array(joints)[None]
+        light, camera = self.kinematics.arm_directions_array(arr)
+        la, ca = self.arms.light, self.arms.camera
+        s, t = segment_params(light * la.from_m, light * la.to_m, camera * ca.from_m,
+                              camera * ca.to_m)
+        return refusals.Meeting(float(self.arm_gap_m(arr)[0]),
+                                la.from_m + float(s[0]) * (la.to_m - la.from_m),
+                                ca.from_m + float(t[0]) * (ca.to_m - ca.from_m))
 
     def check_move(self, current: Mapping[str, float], target: Mapping[str, float]) -> None:
         """The motion guard: raise unless ``target`` passes every safety constraint and the
         move from ``current`` keeps the arms apart along its whole swept path, also when some
-        axes miss the sync write (:class:`CollisionError` naming the axes and where the arms
-        would meet)."""
+        axes miss the sync write (:class:`LimitError` or :class:`CollisionError`, one line
+        naming the axes, where the arms would meet and what to do)."""
         full = {**current, **target}
-        self.check_joints(full)
+        self.check_joints(full, self._moving(current, full))
         if not self.kinematics.moving_arms:
             return
         names = self.kinematics.joint_names
         problem = self.paths.problem(self.kinematics.to_array(current),
                                      self.kinematics.to_array(full), names)
         if problem is not None:
-            raise CollisionError(f"refused move: {self.describe(problem)}; move the other arm "
-                                 "out of the way first, or let gonio route the move")
+            raise CollisionError(self.describe(problem))
 
-    def describe(self, problem: PathProblem) -> str:
-        """One clause: which axes, and where on the way the arms would come too close."""
-        where = ", ".join(f"{n} {v:.1f}°" for n, v in problem.at.items())
-        short = -problem.gap_m * 1e3
-        how = (f"{short:.1f} mm inside the {self.arms.clearance_m * 1e3:g} mm clearance"
-               if short > 0 else "too close to prove clear")
-        who = " and ".join(problem.moving)
-        alone = " (if the others miss the sync write)" if problem.partial else ""
-        return f"moving {who}{alone} brings the arms {how} at {where}"
+    def _moving(self, current: Mapping[str, float], full: Mapping[str, float]) -> list[str]:
+        """The axes a move from ``current`` to ``full`` turns (all when ``current`` lacks one)."""
+        names = self.kinematics.joint_names
+        if any(n not in current for n in names):
+            return list(names)
+        return [n for n in names if abs(full[n] - current[n]) > MOVING_DEG]
+
+    def describe(self, problem: PathProblem | None, *, routed: bool = True) -> str:
+        """The refusal of a move whose swept path ``problem`` shows (``routed=False``: and no
+        route round it exists): which axes, where on the way the arms would meet, what to do."""
+        if problem is None:  # cannot happen for a refused route; worded all the same
+            return refusals.refusal([], "no safe route was found", refusals.NO_ROUTE_ADVICE)
+        return refusals.swept_path(problem.moving, problem.others, problem.at,
+                                   self.arm_meeting(problem.at), self.arms.clearance_m,
+                                   routed=routed)
 
     def route(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
         """The legs of a safe move from ``current`` to ``target``: ``[target]`` when the direct
@@ -489,11 +565,11 @@ class Planner:
             ``target`` itself is unsafe, or no route exists inside the joint limits (one line).
         """
         full = {**current, **target}
-        self.check_joints(full)
+        self.check_joints(full, self._moving(current, full))
         if not self.kinematics.moving_arms:
             return [full]
         return route_or_raise(self.router, current, full, self.kinematics.joint_names,
-                              self.describe)
+                              lambda problem: self.describe(problem, routed=False))
 
     def route_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
         """Motion time (s) of :meth:`route` (the direct move's when it is safe or unroutable)."""

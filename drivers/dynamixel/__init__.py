@@ -21,6 +21,7 @@ from drivers.dynamixel.codes import (
     MotionTimeoutError,
     OverheatingError,
     OverloadError,
+    PartialMoveError,
     ServoCommandError,
     ServoHardwareError,
     ServoSilentError,
@@ -32,7 +33,7 @@ from drivers.dynamixel.motion import MotionController
 __all__ = [
     "COMMON_BAUD_RATES", "SDK_BAUD_RATES", "Addr", "Axis", "ElectricalShockError",
     "EncoderError", "InputVoltageError", "MotionController", "MotionSample",
-    "MotionTimeoutError", "OverheatingError", "OverloadError", "ServoBus",
+    "MotionTimeoutError", "OverheatingError", "OverloadError", "PartialMoveError", "ServoBus",
     "ServoCommandError", "ServoHardwareError", "ServoLinkStats", "ServoSilentError", "ServoStatus",
     "TorqueOffError", "latency_timer_ms", "latency_warning",
 ]

@@ -12,6 +12,7 @@ Everything that turns one of them into a message or an exception goes through th
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from dynamixel_sdk import (
@@ -26,7 +27,7 @@ from dynamixel_sdk import (
     COMM_TX_FAIL,
 )
 
-from drivers.errors import CommunicationError, HardwareError
+from drivers.errors import CollisionError, CommunicationError, HardwareError
 
 ALERT_BIT = 0x80
 ERRNUM_CRC = 3
@@ -106,6 +107,19 @@ class TorqueOffError(HardwareError):
 
 class MotionTimeoutError(HardwareError):
     """A move did not reach its target within the timeout (the axes were stopped)."""
+
+
+class PartialMoveError(CollisionError):
+    """Some goals of a sync write never arrived, the other axes moved alone, and from where
+    every axis stopped the guard refuses the rest of the move as it was: re-plan from
+    ``readback`` (``acquisition.devices.servos.routed_move`` routes from there)."""
+
+    def __init__(self, message: str, readback: Mapping[str, float], lost: Sequence[str]) -> None:
+        super().__init__(message)
+        self.readback = dict(readback)
+        """Where every axis stands (deg, read back after the stop)."""
+        self.lost = tuple(lost)
+        """The axes whose goal never arrived."""
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,8 @@
    move is partial. Every axis of it stops (braking), and from the read-back pose the guard
    checks the move again before all goals are sent again, by sync write up to
    ``goal_resends - 1`` times, then by acknowledged WRITEs, whose status packets prove arrival.
+   Where the guard refuses the rest of the move from there, :class:`PartialMoveError` carries
+   the read-back pose to the caller, which re-plans (gonio routes round the other arm from it).
    A servo that acknowledged and still holds another value clamps it (its EEPROM position
    limits): :class:`~drivers.errors.LimitError`. One whose acknowledged write gets no valid
    answer: :class:`~drivers.errors.CommunicationError` naming axis and port;
@@ -39,7 +41,12 @@ from typing import Protocol, runtime_checkable
 
 from drivers.dynamixel.axis import Axis
 from drivers.dynamixel.bus import Addr, ServoBus, ServoLinkStats
-from drivers.dynamixel.codes import MotionTimeoutError, ServoSilentError, TorqueOffError
+from drivers.dynamixel.codes import (
+    MotionTimeoutError,
+    PartialMoveError,
+    ServoSilentError,
+    TorqueOffError,
+)
 from drivers.errors import (
     CollisionError,
     CommunicationError,
@@ -312,7 +319,7 @@ class MotionController:
                 bus, sid = lost[name]
                 raise self._never_arrived(bus, sid, goals[name]) from None
         self._wait_at_rest(groups, generation, goals)
-        self.guard.check_move(self.positions_deg(), dict(targets))
+        self._recheck_partial(targets, lost)
         with self._goal_lock, self._permits():
             self._check_generation(generation, goals)
             for bus, names in groups.items():
@@ -323,6 +330,20 @@ class MotionController:
                         self._write_goal_acknowledged(bus, sid, goal, resend=sid in resent)
                     continue
                 bus.resend_goals(ids, lost=resent)
+
+    def _recheck_partial(self, targets: Mapping[str, float], lost: Iterable[str]) -> None:
+        """The guard judges the rest of a partial move from where every axis stopped; where it
+        refuses, :class:`PartialMoveError` hands the read-back pose to whoever re-plans."""
+        readback = self.positions_deg()
+        try:
+            self.guard.check_move(readback, dict(targets))
+        except (LimitError, CollisionError) as exc:
+            missed = sorted(lost)
+            at = ", ".join(f"{n} {v:.1f}°" for n, v in readback.items())
+            raise PartialMoveError(
+                f"partial move: {', '.join(missed)} missed the goal write and the other axes "
+                f"moved alone; all axes stopped at {at}, from where the move as sent is refused "
+                f"({exc})", readback, missed) from None
 
     def _wait_at_rest(self, groups: Mapping[ServoBus, list[str]], generation: int,
                       goals: Mapping[str, int], timeout_s: float = 10.0) -> None:

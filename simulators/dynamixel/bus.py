@@ -13,7 +13,10 @@ delayed past the client's timeout never lands in the next transaction.
 Solid parts (optional): given a :class:`~simulators.rig_solids.SolidRig`, the bus builds a
 :class:`~simulators.dynamixel.world.SolidWorld` over its servos, so arms that touch stall and
 trip on overload; :meth:`SimServoBus.sim_collisions` lists the contacts. Without it the bus is
-bare: servos that never meet anything. Buses of one rig that share a world are built with one
+bare: servos that never meet anything. :func:`drain_collisions` hands over every contact any
+simulated bus of the process saw since it was last called (a bus steps its world up to the
+present when it stops, and live ones are stepped by the call), for a referee that must see
+every bus, whoever started it. Buses of one rig that share a world are built with one
 ``lock`` and attached with :meth:`SimServoBus.sim_attach_world`
 (:mod:`simulators.dynamixel.rig` does that).
 
@@ -48,6 +51,7 @@ import termios
 import threading
 import time
 import tty
+import weakref
 from collections import Counter, deque
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
@@ -60,7 +64,7 @@ from simulators.dynamixel.faults import Fault, WireFaults, parse_faults, wire_fa
 from simulators.dynamixel.protocol import Instruction, Packet, PacketParser
 from simulators.dynamixel.responder import Responder
 from simulators.dynamixel.servo import SimServo
-from simulators.dynamixel.world import DEFAULT_TICK_S, Collision, SolidWorld
+from simulators.dynamixel.world import DEFAULT_TICK_S, Collision, SolidWorld, take_recorded
 from simulators.rig_solids import SolidRig
 
 #: A partial packet older than this (host s) is discarded when new bytes arrive.
@@ -92,6 +96,20 @@ class _ScriptedLoss:
     names: frozenset[str] | None
     count: int
     corrupt: bool
+
+
+_LIVE: weakref.WeakSet[SimServoBus] = weakref.WeakSet()
+"""Started buses not stopped yet (their worlds are stepped to the present by
+:func:`drain_collisions`)."""
+
+
+def drain_collisions() -> list[Collision]:
+    """Every contact of simulated arms in this process since the last call, oldest first per
+    world: the buses still running step their worlds to their clocks' present first, so a
+    contact under way is found now, not in whatever runs next."""
+    for bus in list(_LIVE):
+        bus.sim_collisions()
+    return take_recorded()
 
 
 def _wire_time_mode(wire_time: bool | str | None, clock: object = None) -> WireTime | None:
@@ -268,12 +286,15 @@ class SimServoBus:
         self._thread = threading.Thread(
             target=self._run, name=f"sim-servo-bus {self._port}", daemon=True)
         self._thread.start()
+        _LIVE.add(self)
         return self._port
 
     def stop(self) -> None:
         """Stop the thread and close the pty (the slave path disappears)."""
         if self._thread is None:
             return
+        _LIVE.discard(self)
+        self.sim_collisions()  # the world up to now: contacts are found while their run lasts
         with contextlib.suppress(OSError):
             os.write(self._wake_w, b"x")
         self._thread.join()

@@ -35,15 +35,17 @@ Stepping
 
 Each new contact is recorded as a :class:`Collision` (device time, the stalled axes and servo
 IDs, every arm joint's position in deg and ticks, the closest points) in
-:attr:`SolidWorld.collisions` and logged as a warning on this module's logger. A servo that
-stalls again in the same contact episode (the arms have not been more than
-:data:`EPISODE_REARM_M` apart since) is not recorded twice.
+:attr:`SolidWorld.collisions`, in the process-wide record :func:`take_recorded` empties (for
+a referee that must see every world of a process, whoever built it), and logged as a warning
+on this module's logger. A servo that stalls again in the same contact episode (the arms have
+not been more than :data:`EPISODE_REARM_M` apart since) is not recorded twice.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -62,6 +64,18 @@ EPISODE_REARM_M = 5e-3
 """Gap (m) the arms must exceed before a new contact of the same servo is recorded again."""
 FOLLOW_TOL_TICKS = 1e-3
 """Resolution (ticks) of the position where a following servo touches again."""
+
+_recorded: list[Collision] = []
+_recorded_lock = threading.Lock()
+
+
+def take_recorded() -> list[Collision]:
+    """Every collision any solid world of this process recorded since the last call (oldest
+    first), and forget them."""
+    with _recorded_lock:
+        out = list(_recorded)
+        _recorded.clear()
+    return out
 
 
 @dataclass(frozen=True)
@@ -300,6 +314,8 @@ class SolidWorld:
                 positions_deg=joints, positions_ticks=ticks,
                 light_point_m=contact.light_point_m, camera_point_m=contact.camera_point_m)
             self.collisions.append(record)
+            with _recorded_lock:
+                _recorded.append(record)
             logger.warning("%s", record)
         return bool(pushers)
 

@@ -123,10 +123,10 @@ class CalibrationBundle:
         file = path / SCALARS_FILE
         try:
             scalars = json.loads(file.read_text())
-        except FileNotFoundError:
+        except (FileNotFoundError, NotADirectoryError):
             raise CalibrationError(
-                f"{path} is not a calibration bundle (no {SCALARS_FILE}); make one with "
-                "gonio calibrate dark|flat|noise|white --out " + str(path)
+                f"{path} is not a calibration bundle (no {SCALARS_FILE}): give the folder "
+                "`gonio calibrate dark|flat|noise|white --out FOLDER` wrote"
             ) from None
         except json.JSONDecodeError as exc:
             raise CalibrationError(f"{file}: not valid JSON ({exc}); re-run gonio calibrate") from None

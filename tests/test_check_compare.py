@@ -73,6 +73,40 @@ def test_check_fails_when_the_table_reflects_more_than_it_receives(
     assert out["checks"]["reciprocity"]["passed"] is True
 
 
+def test_the_row_at_the_normal_counts_for_every_azimuth(quick_tables: dict[str, Path]) -> None:
+    """At θi = 0 the planner measures one Δφ (the others are the same pose): ρ(0°) must not
+    come out ~10× low for it."""
+    from acquisition.analysis.checks import directional_albedo
+
+    alb = directional_albedo(api.open_table(quick_tables["ggx"]))
+    rho = alb["rho"][:, 1]
+    assert rho[0] > 0.9 * rho[1] and alb["covered"][0] > 0.9
+
+
+def test_compare_takes_a_session_folder_and_export_names_its_table(
+        quick_tables: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    folder = api.compare(quick_tables["ggx-session"], quick_tables["ggx"])
+    assert folder.relative["max"]["all"] == 0.0  # the same capture, reduced again
+    assert main(["export", str(quick_tables["ggx-session"]), "--format", "csv"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is a folder: give its table" in err
+    assert main(["info", str(quick_tables["ggx"])]) == 0
+    assert "gonio-isotropic-brdf v2" in capsys.readouterr().out
+
+
+def test_a_reader_that_leaves_early_gets_no_error(quick_tables: dict[str, Path]) -> None:
+    """`gonio compare … | head -1`: the pipe closes early; gonio stops quietly (141)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "acquisition.cli", "compare",
+                             str(quick_tables["ggx"]), MATERIALS["ggx"][0]],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader is gone before gonio writes
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 141 and b"error" not in err, err
+
+
 def test_directional_albedo_of_a_lambertian_table_is_its_albedo() -> None:
     """ρ = Σ f · projected solid angle: a fully covered Lambertian table gives its albedo."""
     from acquisition.analysis.checks import directional_albedo

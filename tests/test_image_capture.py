@@ -194,3 +194,11 @@ def test_image_based_table_keeps_its_merl_table_and_budget(tmp_path: Path) -> No
     assert measured.sum() > 100
     assert np.all(np.isfinite(table.std_error[measured])) and np.all(table.std_error[measured] > 0)
     assert table.provenance["noise_model"] == "sensor model"
+    assert "binning" in table.uncertainty_terms  # pixels spread over each bin
+    # the physics checks pass and the fit (the model averaged over each bin's pixel spread)
+    # finds the material within 3σ
+    assert not api.check(table).failed, [c.line for c in api.check(table).checks]
+    fit = api.fit(table, "ggx")
+    for key, true in (("albedo", 0.2), ("alpha", 0.2), ("f0", 0.2)):
+        value, sigma = np.atleast_1d(fit.params[key]), np.atleast_1d(fit.sigma[key])
+        assert np.all(np.abs(value - true) <= 3 * sigma), (key, value, sigma)

@@ -57,6 +57,17 @@ def test_the_report_of_a_table_and_its_json(quick_tables: dict[str, Path], tmp_p
     assert api.open_table(quick_tables["beckmann"]).count.sum() > 0  # the table is intact
 
 
+def test_report_refuses_unknown_models_and_other_formats(quick_tables: dict[str, Path],
+                                                          tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["report", str(quick_tables["ggx"]), "-o", str(tmp_path / "r.html"),
+                 "--models", "gxx"]) == 2
+    assert "--models: unknown model 'gxx'" in capsys.readouterr().err
+    assert main(["report", str(quick_tables["ggx"]), "-o", str(tmp_path / "r.pdf")]) == 2
+    assert "end the name in .html" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def _browser() -> str | None:
     for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
         path = shutil.which(name)

@@ -197,7 +197,7 @@ def test_h5_layout_attributes_dtypes_and_shapes(tmp_path):
         assert set(f.keys()) == {
             "theta_i_edges", "theta_r_edges", "delta_phi_edges", "mean", "variance", "count",
             "std_error", "mean_theta_i_deg", "mean_theta_r_deg", "mean_delta_phi_deg",
-            "uncertainty",
+            "angle_covariance_deg2", "uncertainty",
         }
         attrs = dict(f.attrs)
         assert np.isnan(attrs.pop("scatter_ratio")) and attrs.pop("scatter_bins") == 0

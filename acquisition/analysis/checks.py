@@ -100,17 +100,41 @@ def _projected_solid_angle(table: IsotropicTable) -> np.ndarray:
     return ring[:, None] * dphi[None, :]
 
 
+DEGENERATE_DEG = 1.0
+"""A (θi, θr) row whose samples lie this close to the normal in θi or θr has no azimuth:
+f does not depend on Δφ there (the planner measures one Δφ of it)."""
+
+
+def _azimuth_filled(table: IsotropicTable) -> tuple[np.ndarray, ...]:
+    """Mean, independent and common uncertainty, and the measured mask, with each degenerate
+    row's unmeasured Δφ bins given its measured bins' average (:data:`DEGENERATE_DEG`)."""
+    measured = table.count > 0
+    mean, u_ind, u_com = table.mean, _independent_u(table), _common_u(table)
+    angles = table.mean_angles
+    nearest = np.where(measured, np.minimum(angles[..., 0], angles[..., 1]), np.inf)
+    near = nearest.min(axis=2) < DEGENERATE_DEG
+    rows = near & measured.any(axis=2) & ~measured.all(axis=2)
+    filled = measured.copy()
+    for i, r in np.argwhere(rows):
+        have = measured[i, r]
+        for arr in (mean, u_ind, u_com):
+            arr[i, r, ~have] = arr[i, r, have].mean(axis=0)
+        filled[i, r] = True
+    return mean, u_ind, u_com, filled
+
+
 def directional_albedo(table: IsotropicTable) -> dict[str, np.ndarray]:
     """Per θi bin: ``rho`` (Nθi, 3), its standard uncertainty ``u`` (Nθi, 3), the measured
-    fraction of the projected hemisphere ``covered`` (Nθi,), and the θi centres."""
+    fraction of the projected hemisphere ``covered`` (Nθi,), and the θi centres. Rows at the
+    normal (θi or θr ≈ 0, no azimuth) count for every Δφ."""
     w = _projected_solid_angle(table)[None, :, :, None]
-    measured = (table.count > 0)[..., None]
-    mean = np.where(measured, table.mean, 0.0)
-    rho = np.sum(mean * w, axis=(1, 2))
-    u_ind = np.sqrt(np.sum(np.where(measured, _independent_u(table), 0.0) ** 2 * w**2, axis=(1, 2)))
-    u_com = np.sum(np.where(measured, _common_u(table), 0.0) * w, axis=(1, 2))
+    mean, u_ind, u_com, filled = _azimuth_filled(table)
+    measured = filled[..., None]
+    rho = np.sum(np.where(measured, mean, 0.0) * w, axis=(1, 2))
+    u_i = np.sqrt(np.sum(np.where(measured, u_ind, 0.0) ** 2 * w**2, axis=(1, 2)))
+    u_c = np.sum(np.where(measured, u_com, 0.0) * w, axis=(1, 2))
     covered = np.sum(measured[..., 0] * w[..., 0], axis=(1, 2)) / np.pi
-    return {"theta_i_deg": table.centers()[0], "rho": rho, "u": np.sqrt(u_ind**2 + u_com**2),
+    return {"theta_i_deg": table.centers()[0], "rho": rho, "u": np.sqrt(u_i**2 + u_c**2),
             "covered": covered}
 
 

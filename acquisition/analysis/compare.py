@@ -112,7 +112,7 @@ class Comparison:
                "relative error |B − A| / A: median {:.3g} %, mean {:.3g} %, 95th percentile "
                "{:.3g} %, max {:.3g} %".format(*(100 * rel[s]["all"]
                                                  for s in ("median", "mean", "p95", "max"))),
-               f"log ratio RMS {self.log_rms:.3g}; "
+               "metrics (A as the reference): "
                + ", ".join(f"{k} {v:.4g}" for k, v in self.metrics.items())]
         if self.z is not None:
             out.append(f"z = (B − A)/u: median |z| {self.z['median_abs']:.2f}, "
@@ -186,7 +186,9 @@ def compare(a: Side, b: Side) -> Comparison:
         z = {"median_abs": float(np.median(zz)), "beyond_3": float(np.mean(zz > 3))}
     order = np.argsort(-np.max(rel, axis=1))[:WORST]
     channel = np.argmax(rel, axis=1)
-    worst = [{"angles_deg": angles[k].tolist(), "channel": "RGB"[channel[k]],
+    shown = angles.copy()
+    shown[:, 2] = np.abs((shown[:, 2] + 180.0) % 360.0 - 180.0)  # Δφ folded into [0°, 180°]
+    worst = [{"angles_deg": shown[k].tolist(), "channel": "RGB"[channel[k]],
               "a": float(va[k, channel[k]]), "b": float(vb[k, channel[k]]),
               "relative": float((vb[k, channel[k]] - va[k, channel[k]]) / va[k, channel[k]])}
              for k in order]

@@ -15,6 +15,8 @@ from acquisition.tables import IsotropicTable
 
 GREEN = 1
 """Channel the single-channel figures show."""
+MAX_PANELS = 8
+"""Δφ bins a map shows at most (evenly chosen; the caption says which)."""
 
 
 def pyplot() -> Any:
@@ -32,11 +34,21 @@ def _slice_grid(n: int) -> tuple[int, int]:
     return (n + cols - 1) // cols, cols
 
 
+def map_panels(table: IsotropicTable) -> np.ndarray:
+    """The Δφ bins a map shows: all, or :data:`MAX_PANELS` evenly spread."""
+    n = table.shape[2]
+    return np.arange(n) if n <= MAX_PANELS else np.unique(
+        np.linspace(0, n - 1, MAX_PANELS).round().astype(int))
+
+
 def bin_maps(table: IsotropicTable, values: np.ndarray, label: str, *, log: bool = False,
-             cmap: str = "viridis") -> Any:
-    """One (θi × θr) map per Δφ bin of a per-bin quantity (NaN: not measured, grey)."""
+             cmap: str = "viridis", vmin: float | None = None) -> Any:
+    """One (θi × θr) map per shown Δφ bin (:func:`map_panels`) of a per-bin quantity (NaN:
+    not measured, grey)."""
     plt = pyplot()
-    _, _, dp = table.centers()
+    panels = map_panels(table)
+    dp = table.centers()[2][panels]
+    values = values[:, :, panels]
     rows, cols = _slice_grid(dp.size)
     fig, axes = plt.subplots(rows, cols, figsize=(3.1 * cols, 2.9 * rows + 0.4), squeeze=False,
                              layout="constrained")
@@ -45,7 +57,8 @@ def bin_maps(table: IsotropicTable, values: np.ndarray, label: str, *, log: bool
     if finite.size:
         from matplotlib.colors import LogNorm, Normalize
 
-        lo, hi = float(finite.min()), float(finite.max())
+        lo, hi = float(finite.min()) if vmin is None else vmin, float(finite.max())
+        hi = hi if hi > lo else lo + 1.0
         norm = LogNorm(max(lo, hi * 1e-6, 1e-300), hi) if log and hi > 0 else Normalize(lo, hi)
     ext = [table.theta_r_edges[0], table.theta_r_edges[-1], table.theta_i_edges[0],
            table.theta_i_edges[-1]]
@@ -57,10 +70,10 @@ def bin_maps(table: IsotropicTable, values: np.ndarray, label: str, *, log: bool
         ax.set_facecolor("#dddddd")
         image = ax.imshow(np.ma.masked_invalid(values[:, :, k]), origin="lower", extent=ext,
                           aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
-        ax.set_title(f"Δφ = {dp[k]:g}°", fontsize=9)
-        ax.set_xlabel("θr (°)", fontsize=8)
-        ax.set_ylabel("θi (°)", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_title(f"Δφ = {dp[k]:g}°", fontsize=10)
+        ax.set_xlabel("θr (°)", fontsize=9)
+        ax.set_ylabel("θi (°)", fontsize=9)
+        ax.tick_params(labelsize=8)
     if image is not None:
         fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.8, label=label)
     fig.get_layout_engine().set(h_pad=0.12, w_pad=0.08)
@@ -68,18 +81,20 @@ def bin_maps(table: IsotropicTable, values: np.ndarray, label: str, *, log: bool
 
 
 def polar_slices(table: IsotropicTable, fit: FitResult | None = None) -> Any:
-    """BRDF (green, sr⁻¹, log radius) against θr in the plane of incidence (Δφ 0°/180°) and
-    across it (Δφ 90°), one panel per θi, with ±1σ error bars (and the best fit's curve)."""
+    """BRDF (green) against θr in the plane of incidence (left: the light's side, Δφ 0°;
+    right: the mirror side, Δφ 180°) and across it (Δφ 90°), one polar panel per θi, radius
+    log f with ticks in sr⁻¹, ±1σ error bars and the best fit's curve."""
     plt = pyplot()
     ti, tr, dp = table.centers()
     picks = np.unique(np.linspace(0, ti.size - 1, min(4, ti.size)).round().astype(int))
-    planes = [("in plane (Δφ 0°|180°)", 0.0, 180.0, "C0"),
+    planes = [("in plane (Δφ 0° | 180°)", 0.0, 180.0, "C0"),
               ("out of plane (Δφ 90°)", 90.0, 90.0, "C1")]
     fig, axes = plt.subplots(1, len(picks), subplot_kw={"projection": "polar"},
-                             figsize=(3.4 * len(picks), 3.8), squeeze=False)
+                             figsize=(3.6 * len(picks), 4.2), squeeze=False)
     mean, se = table.mean[..., GREEN], table.std_error[..., GREEN]
     positive = mean[(table.count > 0) & (mean > 0)]
-    floor = float(positive.min()) / 2 if positive.size else 1e-3
+    lo = np.floor(np.log10(positive.min())) if positive.size else -3.0
+    hi = np.ceil(np.log10(positive.max())) if positive.size else 0.0
     for ax, i in zip(axes[0], picks, strict=True):
         for name, back, front, colour in planes:
             jb, jf = int(np.argmin(np.abs(dp - back))), int(np.argmin(np.abs(dp - front)))
@@ -87,42 +102,52 @@ def polar_slices(table: IsotropicTable, fit: FitResult | None = None) -> Any:
             y = np.concatenate([mean[i, ::-1, jb], mean[i, :, jf]])
             e = np.concatenate([se[i, ::-1, jb], se[i, :, jf]])
             ok = np.isfinite(y) & (y > 0)
-            r = np.log10(np.maximum(y[ok], floor)) - np.log10(floor)
+            r = np.log10(y[ok]) - lo
             er = np.nan_to_num(e[ok] / (y[ok] * np.log(10)))
-            ax.errorbar(angle[ok], r, yerr=er, fmt="o", ms=3, color=colour, label=name,
+            ax.errorbar(angle[ok], r, yerr=er, fmt="o", ms=3.5, color=colour, label=name,
                         capsize=2, lw=0.8)
             if fit is not None:
                 t = np.linspace(-np.pi / 2 * 0.98, np.pi / 2 * 0.98, 181)
-                az = np.where(t < 0, back, front)
-                g = fit.evaluate(ti[i], np.degrees(np.abs(t)), az)[..., GREEN]
-                ax.plot(t, np.log10(np.maximum(g, floor)) - np.log10(floor), "-", color=colour,
-                        lw=0.8, alpha=0.7)
-        top = ax.get_ylim()[1]
-        ax.set_rticks(np.round(np.linspace(0, top, 4)[1:], 1))
+                g = fit.evaluate(ti[i], np.degrees(np.abs(t)), np.where(t < 0, back, front))
+                ax.plot(t, np.log10(np.maximum(g[..., GREEN], 10**lo)) - lo, "-", color=colour,
+                        lw=0.9, alpha=0.7)
         ax.set_theta_zero_location("N")
+        ax.set_theta_direction(-1)  # positive θr (mirror side) to the right
         ax.set_thetamin(-90)
         ax.set_thetamax(90)
-        ax.set_title(f"θi = {ti[i]:g}°", fontsize=9)
-        ax.set_xlabel("radius: log₁₀(f / floor), f in sr⁻¹", fontsize=7)
-        ax.tick_params(labelsize=7)
-    axes[0][0].legend(fontsize=7, loc="lower left")
-    fig.suptitle("Polar slices, green channel (points ±1σ; lines: best fit; left: light's side)",
-                 fontsize=10)
+        decades = np.arange(lo, hi + 1)
+        ax.set_rlim(0, hi - lo)
+        ax.set_rticks(decades[1:] - lo, [f"{10**d:g}" for d in decades[1:]], fontsize=8)
+        ax.set_title(f"θi = {ti[i]:g}°", fontsize=11)
+        ax.tick_params(labelsize=8)
+    axes[0][0].legend(fontsize=8, loc="lower left", bbox_to_anchor=(0.0, -0.25))
+    fig.suptitle("BRDF (sr⁻¹, green, log radius) against θr: left the light's side, right the "
+                 "mirror side; ±1σ; lines: best fit", fontsize=11)
     fig.tight_layout()
     return fig
 
 
 def halfdiff_image(table: IsotropicTable) -> Any:
-    """Measured bins on (θh, θd), coloured by log₁₀ f (green), MERL style."""
+    """Measured bins on (θh, θd), coloured by log₁₀ f (green), MERL style: points for a few
+    hundred bins, their 2.5° average image beyond (no point hides another)."""
     plt = pyplot()
     measured = table.count > 0
     a = table.mean_angles[measured]
     th, td, _ = halfdiff_from_angles(a[:, 0], a[:, 1], a[:, 2])
-    f = table.mean[measured][:, GREEN]
-    fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    sc = ax.scatter(np.sqrt(th / 90.0) * 90.0, td, c=np.log10(np.maximum(f, 1e-6)), s=28,
-                    cmap="viridis", edgecolors="k", linewidths=0.2)
-    fig.colorbar(sc, label="log₁₀ BRDF (sr⁻¹), green")
+    logf = np.log10(np.maximum(table.mean[measured][:, GREEN], 1e-6))
+    x = np.sqrt(th / 90.0) * 90.0
+    fig, ax = plt.subplots(figsize=(6, 4.8))
+    if x.size <= 400:
+        image = ax.scatter(x, td, c=logf, s=30, cmap="viridis", edgecolors="k", linewidths=0.3)
+    else:
+        from scipy.stats import binned_statistic_2d
+
+        edges = np.arange(0.0, 92.5, 2.5)
+        stat = binned_statistic_2d(x, td, logf, "mean", bins=[edges, edges]).statistic
+        image = ax.imshow(np.ma.masked_invalid(stat.T), origin="lower", extent=[0, 90, 0, 90],
+                          cmap="viridis", aspect="auto", interpolation="nearest")
+        ax.set_facecolor("#dddddd")
+    fig.colorbar(image, label="log₁₀ BRDF (sr⁻¹), green")
     ticks = np.array([0, 5, 20, 45, 90])
     ax.set_xticks(np.sqrt(ticks / 90.0) * 90.0, [f"{t}" for t in ticks])
     ax.set_xlabel("θh (°, square-root axis as in MERL)")

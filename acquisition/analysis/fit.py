@@ -12,6 +12,10 @@
   log roughness / exponents, linear colour weights, energy-coupled fractions — a box in
   which every point conserves energy. SciPy's ``least_squares`` (trust-region reflective)
   searches it.
+* **Spread within a bin**: where a bin gathers samples spread over it (an image's pixels),
+  its mean is the model's average over them, f(m) + ½ Σ H_jk C_jk to second order (H the
+  model's Hessian in the angles, C the samples' angle covariance the table keeps); the fit
+  adds that term, evaluated at the previous solution, and fits again.
 * **Start** (no knowledge of the answer): a grid over the shared shape parameters; at each
   node the colour parameters, which enter the model affinely, are solved by bounded linear
   least squares (``lsq_linear``); the best nodes seed the nonlinear fit.
@@ -103,6 +107,13 @@ class FitResult:
     """Parameters that ended on an edge of the fit box (their 1σ is not meaningful there)."""
 
     @property
+    def poorly_constrained(self) -> tuple[str, ...]:
+        """Parameters whose 1σ exceeds their value's magnitude (in any channel): the data
+        cannot tell them (e.g. a second lobe the material does not have)."""
+        return tuple(p.name for p in self.model.params if p.name not in self.at_bound and np.any(
+            np.atleast_1d(self.sigma[p.name]) > np.abs(np.atleast_1d(self.params[p.name]))))
+
+    @property
     def material(self) -> str:
         """A material spec the simulated camera accepts (re-capture the fit)."""
         return self.model.spec(self.params)
@@ -124,7 +135,8 @@ class FitResult:
                 params[p.name] = {"value": float(v), "sigma": float(s)}  # type: ignore[arg-type]
         return {"model": self.model.name, "params": params, "chi2_dof": self.chi2_dof,
                 "dof": self.dof, "bins": self.n_bins, "metrics": self.metrics,
-                "material": self.material, "at_bound": list(self.at_bound)}
+                "material": self.material, "at_bound": list(self.at_bound),
+                "poorly_constrained": list(self.poorly_constrained)}
 
 
 class _Problem:
@@ -137,6 +149,8 @@ class _Problem:
         self.nuisance = bool(np.any(self.scale > 0))
         self.layout = _Layout(model.params)
         self.cos = Cosines.of(*data.angles_deg.T)
+        self.correction = np.zeros(data.values.shape)
+        """Second-order spread term added to the model (:func:`_spread_correction`)."""
 
     @property
     def size(self) -> int:
@@ -153,10 +167,11 @@ class _Problem:
         return self.model.physical(self.layout.values(x[:self.layout.size]))
 
     def predict(self, physical: dict[str, np.ndarray | float]) -> np.ndarray:
-        return self.model.evaluate(self.cos, physical)
+        return self.model.evaluate(self.cos, physical) + self.correction
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         model = self.predict(self.physical(x))
+        model = np.where(np.isfinite(model), model, 1e30)  # outside the model's domain
         if not self.nuisance:
             return ((model - self.data.values) / self.data.u_independent).T.ravel()
         delta = x[self.layout.size:]
@@ -186,8 +201,10 @@ def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, n
     """At fixed shape parameters, the colour parameters by bounded linear least squares on
     each channel (the model is affine in each of them); returns (cost, fit vector)."""
     model, data = problem.model, problem.data
-    colour = [p for p in model.params if p.per_channel]
-    base = {p.name: np.zeros(3) for p in colour} | shared
+    fixed = {p.name: np.full(3, p.start) for p in model.params
+             if p.per_channel and p.start is not None}
+    colour = [p for p in model.params if p.per_channel and p.start is None]
+    base = {p.name: np.zeros(3) for p in colour} | fixed | shared
     f0 = problem.predict(base)
     columns = []
     for p in colour:
@@ -195,7 +212,7 @@ def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, n
         unit[p.name] = np.ones(3)
         columns.append(problem.predict(unit) - f0)
     w = 1.0 / data.u_independent
-    physical: dict[str, Any] = dict(shared)
+    physical: dict[str, Any] = dict(shared) | fixed
     for p in colour:
         physical[p.name] = np.zeros(3)
     cost = 0.0
@@ -209,6 +226,11 @@ def _linear_start(problem: _Problem, shared: dict[str, float]) -> tuple[float, n
     x = np.concatenate([problem.layout.vector(model.fit_values(physical)),
                         np.zeros(problem.size - problem.layout.size)])
     return float(np.sum(problem.residuals(x) ** 2)), x
+
+
+def _solve(problem: _Problem, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> Any:
+    return least_squares(problem.residuals, np.clip(x0, lo, hi), bounds=(lo, hi), method="trf",
+                         x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
 
 
 def _covariance(problem: _Problem, x: np.ndarray, jac: np.ndarray, chi2_dof: float
@@ -225,6 +247,35 @@ def _covariance(problem: _Problem, x: np.ndarray, jac: np.ndarray, chi2_dof: flo
     return jp @ cov_x @ jp.T
 
 
+SPREAD_STEP_DEG = 0.5
+"""Finite-difference step of the Hessian in :func:`_spread_correction`, degrees."""
+SPREAD_PASSES = 2
+
+
+def _spread_correction(model: Model, physical: dict[str, Any], data: BinData) -> np.ndarray:
+    """½ Σ_jk H_jk C_jk per bin (N, 3): the model's average over each bin's sample spread minus
+    its value at the mean angles, to second order (central differences of SPREAD_STEP_DEG)."""
+    cov = data.angle_cov
+    assert cov is not None
+    h = SPREAD_STEP_DEG
+    a = data.angles_deg
+
+    def f(shift: np.ndarray) -> np.ndarray:
+        return model.evaluate(Cosines.of(*(a + shift).T), physical)
+
+    unit = np.eye(3) * h
+    centre = f(np.zeros(3))
+    out = np.zeros_like(centre)
+    for j in range(3):
+        d2 = (f(unit[j]) - 2.0 * centre + f(-unit[j])) / h**2
+        out += 0.5 * d2 * cov[:, j:j + 1]
+    for k, (j, m) in enumerate(((0, 1), (0, 2), (1, 2))):
+        mixed = (f(unit[j] + unit[m]) - f(unit[j] - unit[m]) - f(-unit[j] + unit[m])
+                 + f(-unit[j] - unit[m])) / (4.0 * h**2)
+        out += mixed * cov[:, 3 + k:4 + k]
+    return np.where(np.isfinite(out), out, 0.0)
+
+
 def fit_model(model: Model, data: BinData) -> FitResult:
     """Fit ``model`` to the bins ``data`` (see the module docstring)."""
     n_params = _Layout(model.params).size
@@ -238,14 +289,19 @@ def fit_model(model: Model, data: BinData) -> FitResult:
     lo, hi = problem.bounds()
     best = None
     for _, x0 in starts:
-        sol = least_squares(problem.residuals, np.clip(x0, lo, hi), bounds=(lo, hi),
-                            method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                            max_nfev=2000)
+        sol = _solve(problem, x0, lo, hi)
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
+    spread = data.angle_cov is not None and float(np.max(data.angle_cov[:, :3], initial=0)) > 1e-4
+    for _ in range(SPREAD_PASSES if spread else 0):
+        problem.correction = _spread_correction(model, problem.physical(best.x), data)
+        best = _solve(problem, best.x, lo, hi)
     chi2 = 2.0 * float(best.cost)
     chi2_dof = chi2 / dof
+    if not (np.isfinite(chi2) and np.all(np.isfinite(best.jac))):
+        raise ConfigError(f"the {model.name} fit did not converge on these {data.n} bins: try "
+                          "another model or options")
     cov = _covariance(problem, best.x, best.jac, chi2_dof)
     physical = problem.physical(best.x)
     sigma_flat = np.sqrt(np.clip(np.diag(cov), 0.0, None))

@@ -29,6 +29,9 @@ class BinData:
     solid_angle:
         (N,) the bins' measure in (ωi, ωo): sin θi sin θr Δθi Δθr ΔΔφ (rad⁵), for weighted
         metrics.
+    angle_cov:
+        (N, 6) covariance of each bin's sample angles, deg² (θiθi, θrθr, ΔφΔφ, θiθr, θiΔφ,
+        θrΔφ); zero for single samples.
     """
 
     angles_deg: np.ndarray
@@ -36,6 +39,7 @@ class BinData:
     u_independent: np.ndarray
     u_common: np.ndarray
     solid_angle: np.ndarray
+    angle_cov: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -73,4 +77,4 @@ def bin_data(table: IsotropicTable) -> BinData:
     keep = ((table.count > 0) & np.all(np.isfinite(mean), -1) & np.all(indep > 0, -1)
             & np.all(np.isfinite(indep), -1) & np.all(np.isfinite(common), -1))
     return BinData(table.mean_angles[keep], mean[keep], indep[keep], common[keep],
-                   bin_solid_angles(table)[keep])
+                   bin_solid_angles(table)[keep], np.nan_to_num(table.angle_covariance[keep]))

@@ -103,6 +103,8 @@ def _fit_table(fits: list[FitResult]) -> str:
                      if p.per_channel else _value(float(v), float(s)))
             if p.name in fit.at_bound:
                 shown += " (at the edge of the fit box)"
+            elif p.name in fit.poorly_constrained:
+                shown += " (poorly constrained)"
             rows.append((fit.model.name, p.name + (f" ({p.unit})" if p.unit else ""), shown))
         rows.append((fit.model.name, "χ²/dof (dof)", f"{fit.chi2_dof:.4g} ({fit.dof})"))
         rows.append((fit.model.name, "metrics",
@@ -113,9 +115,8 @@ def _fit_table(fits: list[FitResult]) -> str:
 def _checks_html(checks: list[Check]) -> str:
     items = []
     for c in checks:
-        mark = ("" if c.passed is None else
-                '<span class="pass">pass</span> ' if c.passed else '<span class="fail">FAIL</span> ')
-        items.append(f"<li>{mark}{html.escape(c.line)}</li>")
+        style = "" if c.passed is None else ' class="pass"' if c.passed else ' class="fail"'
+        items.append(f"<li{style}>{html.escape(c.line)}</li>")
     return "<ul>" + "".join(items) + "</ul>"
 
 
@@ -134,12 +135,24 @@ def _comparison_html(cmp: Comparison) -> str:
             + _figure(fig, "comparison scatter", "Each common bin: B against A (log axes)."))
 
 
+def _spans_decades(values: np.ndarray) -> bool:
+    finite = values[np.isfinite(values) & (values > 0)]
+    return bool(finite.size) and finite.max() / finite.min() > 30
+
+
+def _panels_note(table: IsotropicTable) -> str:
+    shown = figures.map_panels(table)
+    return "" if shown.size == table.shape[2] else (
+        f" ({shown.size} of the {table.shape[2]} Δφ bins, evenly spread)")
+
+
 def _reciprocity_html(table: IsotropicTable) -> str:
     fig = figures.reciprocity_map(table)
     if fig is None:
         return '<p class="muted">θi and θr are binned differently: no reciprocal pairs.</p>'
     return _figure(fig, "reciprocity map",
-                   "z-score of f(θi, θr) − f(θr, θi) for every pair measured both ways.")
+                   "z-score of f(θi, θr) − f(θr, θi) for every pair measured both ways"
+                   + _panels_note(table) + ".")
 
 
 def build_html(data: ReportData) -> str:
@@ -163,11 +176,14 @@ def build_html(data: ReportData) -> str:
             f"<li>{html.escape(w)}</li>" for w in data.warnings) + "</ul>")
     parts += ["<h2>Physical checks</h2>", _checks_html(data.checks),
               "<h2>Coverage</h2>",
-              _figure(figures.bin_maps(t, count, "samples per bin"), "count maps",
-                      "Samples per bin on (θi, θr), one panel per Δφ bin; grey: not measured."),
+              _figure(figures.bin_maps(t, count, "samples per bin", log=_spans_decades(count),
+                                       vmin=None if _spans_decades(count) else 0.0),
+                      "count maps", "Samples per bin on (θi, θr), one panel per Δφ bin"
+                      + _panels_note(t) + "; grey: not measured."),
               "<h2>Signal to noise</h2>",
               _figure(figures.bin_maps(t, snr, "SNR = f / std_error (lowest channel)", log=True),
-                      "SNR maps", "Each bin's mean over its standard uncertainty (log colour)."),
+                      "SNR maps", "Each bin's mean over its standard uncertainty (log colour)"
+                      + _panels_note(t) + "."),
               "<h2>Slices</h2>",
               _figure(figures.polar_slices(t, best), "polar slices",
                       "BRDF against θr in and across the plane of incidence, ±1σ."),

@@ -3,6 +3,7 @@ physics, compare, report."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,7 +91,8 @@ def compare(a: str | Path | IsotropicTable, b: str | Path | IsotropicTable) -> C
     (:mod:`acquisition.analysis.compare`)."""
     from acquisition.simworld.materials import parse_material
 
-    return compare_sides(open_side(a, parse_material), open_side(b, parse_material))
+    sides = [open_table(s) if Path(str(s)).is_dir() else s for s in (a, b)]
+    return compare_sides(*(open_side(s, parse_material) for s in sides))
 
 
 REPORT_MODELS = ("lambert", "oren-nayar", "blinn-phong", "ggx", "beckmann")
@@ -104,22 +106,36 @@ class ReportResult:
     path: Path
     fits: list[FitResult]
     checks_passed: bool
+    warnings: list[str]
+    """What the report could not do (a fit, the comparison), as it says inside."""
 
 
 def report(source: str | Path, out: str | Path, *, models: tuple[str, ...] = REPORT_MODELS,
            reference: str | Path | None = None, calibration: str | Path | None = None,
-           table: IsotropicTable | None = None) -> ReportResult:
+           table: IsotropicTable | None = None,
+           notice: Callable[[str], None] | None = None) -> ReportResult:
     """Write the HTML report of a table or session (:mod:`acquisition.analysis.report`).
 
     ``reference``: a table, MERL file or material spec to compare with; by default a
     simulated capture is compared with the material the simulated camera rendered.
     ``table``: the session's table when the caller has just reduced it (not reduced again).
+    ``notice`` hears what the report is doing (it takes seconds to minutes).
     """
     from acquisition.analysis.report import build_html, report_data, write_report
     from acquisition.simworld.materials import parse_material
 
+    say = notice or (lambda _text: None)
+    if Path(out).suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"report {out}: a report is one HTML file: end the name in .html")
+    for name in models:
+        try:
+            make_model(name)
+        except ValueError as exc:
+            raise ConfigError(f"--models: {exc}") from None
     path = Path(source)
-    table = table if table is not None else open_table(path, calibration=calibration)
+    if table is None:
+        say(f"reading {path}")
+        table = open_table(path, calibration=calibration)
     prov = table.provenance
     measured: dict[str, Any] = {"source": str(path)}
     for key in ("rig", "plan", "material", "seed", "calibration_bundle", "noise_model"):
@@ -133,6 +149,7 @@ def report(source: str | Path, out: str | Path, *, models: tuple[str, ...] = REP
     fits, fit_errors = [], []
     data = bin_data(table)
     for name in models:
+        say(f"fitting {name}")
         try:
             fits.append(fit_model(make_model(name), data))
         except (ConfigError, ValueError) as exc:
@@ -146,11 +163,13 @@ def report(source: str | Path, out: str | Path, *, models: tuple[str, ...] = REP
         except ConfigError as exc:
             warnings.append(f"comparison with {spec} skipped: {exc}")
     title = f"BRDF report: {prov.get('plan', path.name)} on {prov.get('rig', 'a rig')}"
+    say("drawing the figures")
     rd = report_data(table, title, measured=measured, warnings=warnings, fits=fits,
                      fit_errors=fit_errors, comparison=comparison)
     inputs = [path] + ([Path(reference)] if reference and Path(str(reference)).exists() else [])
     written = write_report(build_html(rd), out, inputs=inputs)
-    return ReportResult(written, fits, not any(c.passed is False for c in rd.checks))
+    return ReportResult(written, fits, not any(c.passed is False for c in rd.checks),
+                        warnings + fit_errors)
 
 
 def _session_lines(folder: Path, warnings: list[str]) -> dict[str, Any]:

@@ -17,7 +17,9 @@ May import: ``acquisition.api`` (and its own modules), nothing else of gonio's.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
@@ -88,6 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except api.GonioError as exc:
         print(f"gonio: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # `gonio … | head`: the reader left; say nothing more
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as exc:  # the last resort: a disk error nothing named is still one line
         print(f"gonio: error: {api.os_error_line(exc)}", file=sys.stderr)
         return 2

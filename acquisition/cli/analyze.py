@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("report", help=COMMANDS["report"])
     p.add_argument("source", help="isotropic table (.h5) or session folder")
-    add_out(p, "report file (.html)", required=True)
+    add_out(p, "report file (.html): one self-contained file", required=True)
     p.add_argument("--models", default=",".join(api.REPORT_MODELS),
                    help="models to fit, comma-separated (default: %(default)s)")
     p.add_argument("--reference", metavar="SOURCE",
@@ -72,7 +72,9 @@ def fit_lines(result: dict) -> list[str]:
     lines = [f"{result['model']} fit to {result['bins']} bins: χ²/dof {result['chi2_dof']:.3g} "
              f"({result['dof']} dof)"]
     for name, entry in result["params"].items():
-        edge = "  (at the edge of the fit box)" if name in result["at_bound"] else ""
+        edge = ("  (at the edge of the fit box)" if name in result["at_bound"] else
+                "  (poorly constrained: 1σ exceeds the value)" if name in result["poorly_constrained"]
+                else "")
         if "value" in entry:
             lines.append(f"  {name:<9} {_value(entry)}{edge}")
         else:
@@ -106,8 +108,12 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def run_report(args: argparse.Namespace) -> int:
-    result = api.report(args.source, args.out, models=tuple(args.models.split(",")),
-                        reference=args.reference, calibration=args.calibration)
+    result = api.report(args.source, args.out,
+                        models=tuple(m.strip() for m in args.models.split(",") if m.strip()),
+                        reference=args.reference, calibration=args.calibration,
+                        notice=lambda text: print(f"report: {text}…", file=sys.stderr))
+    for warning in result.warnings:
+        print(f"gonio: warning: {warning}", file=sys.stderr)
     fits = ", ".join(f"{f.model.name} χ²/dof {f.chi2_dof:.3g}" for f in result.fits)
     report(args, {"report": result.path, "fits": [f.to_dict() for f in result.fits],
                   "checks_passed": result.checks_passed},

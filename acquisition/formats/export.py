@@ -50,6 +50,9 @@ DEFAULT_SUFFIX = {ExportFormat.MERL: ".binary", ExportFormat.CSV: ".csv", Export
 def load_table(path: str | os.PathLike[str]) -> Table:
     """An isotropic HDF5 table or a MERL file, told apart by content (MERL: exact size)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder: give its table (`gonio reduce {path}` writes "
+                          f"{path / 'brdf.h5'}) or a MERL .binary file")
     if not path.is_file():
         raise ConfigError(f"table {path} does not exist: give a .h5 table or a MERL .binary file")
     if path.stat().st_size == MERL_FILE_BYTES:
@@ -326,10 +329,18 @@ def table_info(path: str | os.PathLike[str]) -> TableInfo:
     meas = table.count > 0
     vals = table.mean[meas]
     return TableInfo(
-        path, "gonio-isotropic-brdf v1 (HDF5)", table.shape,
+        path, f"gonio-isotropic-brdf v{_h5_version(path)} (HDF5)", table.shape,
         {"θi": (table.theta_i_edges[0], table.theta_i_edges[-1]),
          "θr": (table.theta_r_edges[0], table.theta_r_edges[-1]),
          "Δφ": (table.delta_phi_edges[0], table.delta_phi_edges[-1])},
         int(meas.sum()), "1/sr", int(table.count.sum()), dict(table.provenance),
         (float(np.nanmin(vals)), float(np.nanmax(vals))) if vals.size else None,
     )
+
+
+def _h5_version(path: Path) -> int:
+    """The format version a table file states."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return int(f.attrs.get("version", 1))

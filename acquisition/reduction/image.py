@@ -33,6 +33,11 @@ counts as one frame.
 Samples are binned frame by frame into a :class:`~acquisition.tables.MerlTable` and the plan's
 :class:`~acquisition.tables.IsotropicTable` (count, sum, sum of squares per bin); no more than
 one frame's samples are held at any time.
+
+The isotropic table's budget has the point reduction's terms (each pixel's noise, the white
+plate's) and a ``binning`` term: a bin gathers pixels spread over its whole extent, so its
+mean depends on where they fell; the observed scatter beyond the noise, over √n, says by how
+much (:func:`acquisition.tables.uncertainty.binning_variance_sums`).
 """
 
 from __future__ import annotations
@@ -323,6 +328,7 @@ def reduce_image_session(
         table, merl, progress, total)
     for t in (table, merl):
         t.provenance["reference_drift_pct"] = drift[0]
+    table.add_binning_term()
     if merl_path is not None:
         write_merl(merl_path, merl)
     return ImageReduction(table=table, frames=frames, references=n_refs, drift_pct=drift[0],

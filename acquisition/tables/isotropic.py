@@ -17,6 +17,8 @@ std_error          float64 [Ni,Nr,Nφ,3]  standard uncertainty of the bin mean, 
 mean_theta_i_deg   float64 [Ni,Nr,Nφ]  mean θi of the bin's samples (read-back), degrees (v2)
 mean_theta_r_deg   float64 [Ni,Nr,Nφ]  mean θr, degrees (v2)
 mean_delta_phi_deg float64 [Ni,Nr,Nφ]  mean Δφ as binned (folded or wrapped), degrees (v2)
+angle_covariance_deg2  float64 [Ni,Nr,Nφ,6]  covariance of the samples' (θi, θr, Δφ):
+                   θiθi, θrθr, ΔφΔφ, θiθr, θiΔφ, θrΔφ, deg² (v2; zero for one sample)
 uncertainty/NAME   float64 [Ni,Nr,Nφ,3]  one term of the budget, sr⁻¹ (v2), with attributes
                    ``correlated`` (common to the bins, e.g. the white reference) and
                    ``description``
@@ -55,8 +57,11 @@ from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delt
 from acquisition.tables.backend import kernels
 from acquisition.tables.merl_table import MerlTable
 from acquisition.tables.uncertainty import (
+    BINNING_DESCRIPTION,
+    BINNING_TERM,
     Term,
     UncertaintySums,
+    binning_variance_sums,
     scatter_ratio,
     total_std_error,
 )
@@ -332,6 +337,15 @@ class IsotropicTable(TableStatistics):
             return self._stored[1].copy()
         return self._acc.variance()
 
+    def add_binning_term(self) -> None:
+        """Add the budget's ``binning`` term (:func:`~acquisition.tables.uncertainty.
+        binning_variance_sums`): for bins filled by many samples spread over the bin (an image's
+        pixels), the bin mean depends on where they fell as much as on their noise."""
+        if self._unc is None:
+            raise ConfigError("add_binning_term needs a table that tracks uncertainty")
+        self._unc.set_independent(BINNING_TERM, BINNING_DESCRIPTION, binning_variance_sums(
+            self._unc, self._acc.variance(), self._acc.count))
+
     @property
     def tracks_uncertainty(self) -> bool:
         """True when the table holds an uncertainty budget (reduced by gonio, or a v2 file)."""
@@ -360,6 +374,16 @@ class IsotropicTable(TableStatistics):
             return self._unc.mean_angles(self.shape)
         grids = np.meshgrid(*self.centers(), indexing="ij")
         out = np.stack(grids, axis=-1)
+        out[self.count == 0] = np.nan
+        return out
+
+    @property
+    def angle_covariance(self) -> np.ndarray:
+        """Covariance of each bin's sample angles, deg², ``shape + (6,)`` (θiθi, θrθr, ΔφΔφ,
+        θiθr, θiΔφ, θrΔφ); zero where untracked, NaN where empty."""
+        if self._unc is not None:
+            return self._unc.angle_covariance(self.shape)
+        out = np.zeros(self.shape + (6,))
         out[self.count == 0] = np.nan
         return out
 
@@ -417,6 +441,7 @@ class IsotropicTable(TableStatistics):
         angles = self.mean_angles
         for k, name in enumerate(_MEAN_ANGLES):
             f.create_dataset(name, data=angles[..., k])
+        f.create_dataset("angle_covariance_deg2", data=self.angle_covariance)
         group = f.create_group("uncertainty")
         for name, term in self.uncertainty_terms.items():
             d = group.create_dataset(name, data=term.values)
@@ -487,9 +512,9 @@ class IsotropicTable(TableStatistics):
         )
         table._stored = (mean, variance)
         if budget is not None:
-            terms, angles, scatter = budget
+            terms, angles, cov, scatter = budget
             if terms:
-                table._unc = UncertaintySums.from_terms(data["count"], terms, angles)
+                table._unc = UncertaintySums.from_terms(data["count"], terms, angles, cov)
             table._stored_scatter = scatter
         return table
 
@@ -525,8 +550,9 @@ def load_merl_h5(path: str | os.PathLike[str]) -> MerlTable | None:
 
 
 def _read_uncertainty(f: h5py.File, path: Path
-                      ) -> tuple[dict[str, Term], np.ndarray, tuple[float, int]]:
-    """A v2 file's budget terms, mean angles (…, 3) and (scatter ratio, bins)."""
+                      ) -> tuple[dict[str, Term], np.ndarray, np.ndarray | None, tuple[float, int]]:
+    """A v2 file's budget terms, mean angles (…, 3), angle covariance (…, 6) and (scatter
+    ratio, bins)."""
     missing = [n for n in ("std_error", *_MEAN_ANGLES, "uncertainty") if n not in f]
     if missing:
         raise ConfigError(f"table {path}: version 2 but missing {', '.join(missing)}")
@@ -535,7 +561,8 @@ def _read_uncertainty(f: h5py.File, path: Path
              for name, d in f["uncertainty"].items()}
     angles = np.stack([np.asarray(f[n][()], np.float64) for n in _MEAN_ANGLES], axis=-1)
     scatter = (float(f.attrs.get("scatter_ratio", np.nan)), int(f.attrs.get("scatter_bins", 0)))
-    return terms, angles, scatter
+    cov = np.asarray(f["angle_covariance_deg2"][()], np.float64) if "angle_covariance_deg2" in f else None
+    return terms, angles, cov, scatter
 
 
 def _attr_str(value: Any) -> str | None:

@@ -11,8 +11,9 @@ A reduction gives every sample its uncertainty as named *terms*:
   bins it is fully correlated — fits treat it as one common-mode error per channel.
 
 The bin's total standard uncertainty ``std_error`` is the root sum of squares of its terms.
-Angles are summed as given (Δφ already as the table bins it), so a bin also knows where its
-samples really lie (read-back poses sit off the bin centres).
+Angles are summed as given (Δφ already as the table bins it), with their products, so a bin
+also knows where its samples really lie (read-back poses sit off the bin centres) and how they
+spread (an image's pixels fill the bin: a fit evaluates the model's average over that spread).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class UncertaintySums:
         self._var = {k: np.zeros((n_bins, 3)) for k in self.independent}
         self._u = {k: np.zeros((n_bins, 3)) for k in self.correlated}
         self._angles = np.zeros((n_bins, 3))
+        self._products = np.zeros((n_bins, 6))
 
     def add(self, flat_index: np.ndarray, angles_deg: np.ndarray,
             variances: Mapping[str, np.ndarray], uncertainties: Mapping[str, np.ndarray]) -> None:
@@ -67,8 +69,10 @@ class UncertaintySums:
         for a in arrays.values():
             keep &= np.all(np.isfinite(a), axis=1)
         i = idx[keep]
+        a = np.asarray(angles_deg, float).reshape(-1, 3)[keep]
         np.add.at(self._n, i, 1)
-        np.add.at(self._angles, i, np.asarray(angles_deg, float).reshape(-1, 3)[keep])
+        np.add.at(self._angles, i, a)
+        np.add.at(self._products, i, a[:, _PAIRS[0]] * a[:, _PAIRS[1]])
         for k in self.independent:
             np.add.at(self._var[k], i, arrays[k][keep])
         for k in self.correlated:
@@ -81,10 +85,19 @@ class UncertaintySums:
             raise ConfigError("cannot merge uncertainty budgets with different terms or bins")
         self._n += other._n
         self._angles += other._angles
+        self._products += other._products
         for k in self.independent:
             self._var[k] += other._var[k]
         for k in self.correlated:
             self._u[k] += other._u[k]
+
+    def set_independent(self, name: str, description: str, sum_of_variances: np.ndarray) -> None:
+        """Add (or replace) an independent term given directly as Σ var per flat bin (n_bins,
+        3): a term known only once every sample is in (:func:`binning_variance_sums`)."""
+        if name not in self.independent:
+            self.independent = (*self.independent, name)
+        self.descriptions[name] = description
+        self._var[name] = np.asarray(sum_of_variances, float).reshape(self.n_bins, 3).copy()
 
     def copy(self) -> UncertaintySums:
         """An independent copy."""
@@ -110,15 +123,27 @@ class UncertaintySums:
         with np.errstate(invalid="ignore", divide="ignore"):
             return (self._angles / self._n[:, None]).reshape(*shape, 3)
 
-    def predicted_sample_variance(self) -> np.ndarray:
-        """Mean predicted variance of one sample per flat bin, independent terms, (n_bins, 3)."""
-        total = sum(self._var.values(), np.zeros((self.n_bins, 3)))
+    def angle_covariance(self, shape: tuple[int, ...]) -> np.ndarray:
+        """Covariance of each bin's sample angles, deg², ``shape + (6,)`` in the order
+        (θiθi, θrθr, ΔφΔφ, θiθr, θiΔφ, θrΔφ); NaN where empty."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n = self._n[:, None].astype(float)
+            mean = self._angles / n
+            cov = self._products / n - mean[:, _PAIRS[0]] * mean[:, _PAIRS[1]]
+        cov[:, :3] = np.maximum(cov[:, :3], 0.0)  # rounding
+        return cov.reshape(*shape, 6)
+
+    def predicted_sample_variance(self, exclude: tuple[str, ...] = ()) -> np.ndarray:
+        """Mean predicted variance of one sample per flat bin, independent terms (but
+        ``exclude``), (n_bins, 3)."""
+        total = sum((v for k, v in self._var.items() if k not in exclude),
+                    np.zeros((self.n_bins, 3)))
         with np.errstate(invalid="ignore", divide="ignore"):
             return total / self._n[:, None]
 
     @classmethod
-    def from_terms(cls, count: np.ndarray, terms: Mapping[str, Term],
-                   mean_angles: np.ndarray) -> UncertaintySums:
+    def from_terms(cls, count: np.ndarray, terms: Mapping[str, Term], mean_angles: np.ndarray,
+                   angle_covariance: np.ndarray | None = None) -> UncertaintySums:
         """Rebuild the sums from a stored budget (inverse of :meth:`terms`)."""
         independent = {k: t.description for k, t in terms.items() if not t.correlated}
         correlated = {k: t.description for k, t in terms.items() if t.correlated}
@@ -127,12 +152,36 @@ class UncertaintySums:
         nf = n.astype(float)[:, None]
         has = n > 0
         sums._n[:] = n
-        sums._angles[has] = (mean_angles.reshape(-1, 3) * nf)[has]
+        m = mean_angles.reshape(-1, 3)
+        sums._angles[has] = (m * nf)[has]
+        cov = (np.zeros((n.size, 6)) if angle_covariance is None
+               else np.nan_to_num(angle_covariance.reshape(-1, 6)))
+        sums._products[has] = ((cov + m[:, _PAIRS[0]] * m[:, _PAIRS[1]]) * nf)[has]
         for k in independent:
             sums._var[k][has] = ((terms[k].values.reshape(-1, 3) * nf) ** 2)[has]
         for k in correlated:
             sums._u[k][has] = (terms[k].values.reshape(-1, 3) * nf)[has]
         return sums
+
+
+_PAIRS = (np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))
+"""Index pairs of the angle products kept per bin: θiθi, θrθr, ΔφΔφ, θiθr, θiΔφ, θrΔφ."""
+
+BINNING_TERM = "binning"
+BINNING_DESCRIPTION = ("the BRDF's variation across a bin as sampled by its pixels (observed "
+                       "scatter beyond the noise), independent")
+
+
+def binning_variance_sums(sums: UncertaintySums, variance: np.ndarray,
+                          count: np.ndarray) -> np.ndarray:
+    """Σ var of the binning term per flat bin: n × max(observed variance of the bin's samples −
+    their predicted noise variance, 0), so its standard uncertainty of the mean is
+    √(excess / n). Bins with fewer than 2 samples get 0 (a single sample has no scatter)."""
+    n = np.asarray(count).reshape(-1).astype(float)
+    observed = np.nan_to_num(np.asarray(variance, float).reshape(-1, 3))
+    predicted = np.nan_to_num(sums.predicted_sample_variance(exclude=(BINNING_TERM,)))
+    excess = np.where((n >= 2)[:, None], np.maximum(observed - predicted, 0.0), 0.0)
+    return excess * n[:, None]
 
 
 def total_std_error(terms: Mapping[str, Term]) -> np.ndarray:
@@ -143,10 +192,11 @@ def total_std_error(terms: Mapping[str, Term]) -> np.ndarray:
 def scatter_ratio(sums: UncertaintySums, variance: np.ndarray, count: np.ndarray
                   ) -> tuple[float, int]:
     """Observed over predicted scatter of repeated samples: √(Σ observed var / Σ predicted var)
-    over bins with ≥ 2 samples (independent terms only), and how many bins that is."""
+    over bins with ≥ 2 samples (independent terms but the binning one, which is made of that
+    scatter), and how many bins that is."""
     repeated = np.asarray(count).reshape(-1) >= 2
     observed = np.asarray(variance, float).reshape(-1, 3)[repeated]
-    predicted = sums.predicted_sample_variance()[repeated]
+    predicted = sums.predicted_sample_variance(exclude=(BINNING_TERM,))[repeated]
     ok = np.all(np.isfinite(observed), 1) & np.all(np.isfinite(predicted), 1)
     if not ok.any() or predicted[ok].sum() <= 0:
         return float("nan"), 0

@@ -44,6 +44,9 @@ class Param:
     coupled:
         The physical value is the fit variable times the room the model's other lobes leave
         (energy conservation), not the fit variable itself.
+    start:
+        Where the fit starts for a colour parameter the model is not affine in (a conductor's
+        η and k); None: the start solves for it linearly.
     """
 
     name: str
@@ -53,6 +56,7 @@ class Param:
     log: bool = False
     unit: str = ""
     coupled: bool = False
+    start: float | None = None
 
     @property
     def size(self) -> int:

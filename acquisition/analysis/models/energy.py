@@ -16,8 +16,10 @@ Quadratures (Gauss–Legendre, numpy; radians inside):
 A microfacet lobe's albedo is linear in its Fresnel term F(cos θd), so it is tabulated once per
 (distribution, masking) against a hat-function basis on cos θd ∈ [0, 1]: any Fresnel law then
 costs one dot product. Largest values are taken over a grid of θi and of the shape parameter
-(the larger of the two neighbouring nodes), then raised by :data:`MARGIN`; the tests check the
-bounds against an independent quadrature in ωo space.
+(interpolated linearly between the two neighbouring nodes, in log for roughness and exponents,
+so the bound moves smoothly with the parameter and a fit does not stick to the nodes), then
+raised by :data:`MARGIN`; the tests check the bounds against an independent quadrature in ωo
+space.
 """
 
 from __future__ import annotations
@@ -110,10 +112,13 @@ def microfacet_basis(distribution: str, masking: str) -> np.ndarray:
 
 
 def _largest_over_nodes(grid: np.ndarray, values_at_nodes: Callable[[int], np.ndarray],
-                        x: float) -> np.ndarray:
-    """MARGIN × the larger of a tabulated quantity's values at the two grid nodes around x."""
+                        x: float, *, log: bool = True) -> np.ndarray:
+    """MARGIN × a tabulated quantity interpolated linearly (in log x where ``log``) between
+    the two grid nodes around x (clamped to the grid's ends)."""
     k = int(np.clip(np.searchsorted(grid, x), 1, grid.size - 1))
-    return MARGIN * np.maximum(values_at_nodes(k - 1), values_at_nodes(k))
+    a, b = (np.log(grid[k - 1]), np.log(grid[k])) if log else (grid[k - 1], grid[k])
+    u = float(np.clip(((np.log(x) if log else x) - a) / (b - a), 0.0, 1.0))
+    return MARGIN * ((1.0 - u) * values_at_nodes(k - 1) + u * values_at_nodes(k))
 
 
 def microfacet_max_albedo(distribution: str, masking: str, alpha: float,
@@ -179,4 +184,4 @@ def _oren_nayar_table() -> np.ndarray:
 def oren_nayar_max_albedo(sigma_deg: float) -> float:
     """Largest directional albedo over θi of Oren–Nayar with ρ = 1 and slope deviation σ."""
     table = _oren_nayar_table()
-    return float(_largest_over_nodes(SIGMA_GRID_DEG, lambda k: table[k], sigma_deg))
+    return float(_largest_over_nodes(SIGMA_GRID_DEG, lambda k: table[k], sigma_deg, log=False))

@@ -161,8 +161,8 @@ class Microfacet(Model):
         fresnel_params = {
             "schlick": (Param("f0", True, 0.0, 1.0),),
             "dielectric": (Param("eta", False, *ETA_DIELECTRIC_RANGE),),
-            "conductor": (Param("eta", True, *ETA_CONDUCTOR_RANGE),
-                          Param("k", True, *K_CONDUCTOR_RANGE)),
+            "conductor": (Param("eta", True, *ETA_CONDUCTOR_RANGE, start=1.0),
+                          Param("k", True, *K_CONDUCTOR_RANGE, start=3.0)),
         }[fresnel]
         second = (Param("alpha2", False, *ALPHA_RANGE, log=True), Param("mix", False, 0.0, 1.0))
         self.params = ((_ALBEDO, Param("alpha", False, *ALPHA_RANGE, log=True)) + fresnel_params

@@ -24,6 +24,8 @@ import logging
 import math
 import os
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -174,18 +176,25 @@ def _tag_values(tag: tifffile.TiffTag) -> np.ndarray:
     return values
 
 
-def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
-    """Black-level and area tags of a DNG's CFA image IFD; None if the file is not a DNG.
-
-    tifffile's own log lines about a damaged file are silenced: the RAW decode that follows
-    reports the damage in one line of gonio's.
-    """
+@contextmanager
+def open_tiff_quietly(path: str | os.PathLike[str]) -> Iterator[tifffile.TiffFile]:
+    """A TIFF (DNG) file opened with tifffile, its own log lines about damage silenced (gonio
+    reports the damage in one line of its own)."""
     import tifffile
 
     quiet = logging.getLogger("tifffile")
     was, quiet.disabled = quiet.disabled, True
     try:
         with tifffile.TiffFile(path) as tif:
+            yield tif
+    finally:
+        quiet.disabled = was
+
+
+def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
+    """Black-level and area tags of a DNG's CFA image IFD; None if the file is not a DNG."""
+    try:
+        with open_tiff_quietly(path) as tif:
             first = tif.pages.first
             if _DNG_VERSION not in first.tags:
                 return None
@@ -200,8 +209,6 @@ def _dng_tags(path: Path) -> dict[int, np.ndarray] | None:
             return {}
     except Exception:  # not a TIFF container (CR3, RAF, ...): not a DNG either
         return None
-    finally:
-        quiet.disabled = was
 
 
 def _dng_stated_black(tags: dict[int, np.ndarray], origin: tuple[int, int]) -> np.ndarray | None:

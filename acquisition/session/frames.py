@@ -9,10 +9,11 @@ are checked for size only, by the writer.
 
 from __future__ import annotations
 
-import logging
 import os
 import struct
 from typing import BinaryIO
+
+from calibration.raw import open_tiff_quietly
 
 TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 """First bytes of a classic TIFF, then of a BigTIFF (little-, big-endian)."""
@@ -33,12 +34,8 @@ def check_raw_frame(path: str | os.PathLike[str]) -> None:
         magic = fh.read(4)
     if magic not in TIFF_MAGIC:
         return
-    import tifffile
-
-    quiet = logging.getLogger("tifffile")
-    was, quiet.disabled = quiet.disabled, True
     try:
-        with tifffile.TiffFile(path) as tif:
+        with open_tiff_quietly(path) as tif:
             first = tif.pages.first
             if _DNG_VERSION not in first.tags:
                 return
@@ -50,8 +47,6 @@ def check_raw_frame(path: str | os.PathLike[str]) -> None:
             exif_at = None if exif is None else exif.offset
     except Exception as exc:
         raise FrameDamaged(f"its TIFF structure does not parse ({type(exc).__name__}: {exc})") from exc
-    finally:
-        quiet.disabled = was
     exif_end = 0
     if exif_at is not None:
         with open(path, "rb") as fh:

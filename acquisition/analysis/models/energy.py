@@ -130,39 +130,35 @@ def microfacet_max_albedo(distribution: str, masking: str, alpha: float,
     return _largest_over_nodes(ALPHA_GRID, lambda k: np.max(f @ basis[k].T, axis=-1), alpha)
 
 
-@functools.lru_cache(maxsize=2)
-def _blinn_phong_table() -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _exponent_table(kind: str) -> np.ndarray:
+    """Largest directional albedo over θi of the unit ``"phong"`` or ``"blinn-phong"`` lobe
+    at each node of :data:`EXPONENT_GRID`."""
     theta_i = np.radians(THETA_I_GRID_DEG)
     out = np.empty(EXPONENT_GRID.size)
     for n, e in enumerate(EXPONENT_GRID):
-        cos_h, _, cos_o, weight, _ = _half_vector_terms(theta_i, float(np.sqrt(2.0 / (e + 2.0))))
-        out[n] = np.max(np.sum(terms.blinn_phong_lobe(cos_h, e) * cos_o * weight, axis=-1))
+        width = float(np.sqrt(2.0 / (e + 2.0)))
+        if kind == "blinn-phong":  # over half vectors h
+            cos_h, _, cos_o, weight, _ = _half_vector_terms(theta_i, width)
+            value = terms.blinn_phong_lobe(cos_h, e) * cos_o * weight
+        else:  # over directions at angle a from the mirror direction ωr, azimuth p about it
+            a, p, w, cos_a = _lobe_nodes(width)
+            ci, si = np.cos(theta_i)[:, None], np.sin(theta_i)[:, None]
+            cos_o = ci * cos_a + si * np.sin(a) * np.cos(p)
+            value = terms.phong_lobe(cos_a, e) * np.maximum(cos_o, 0.0) * w
+        out[n] = np.max(np.sum(value, axis=-1))
     return out
 
 
 def blinn_phong_max_albedo(e: float) -> float:
     """Largest directional albedo over θi of the unit Blinn-Phong lobe of exponent ``e``."""
-    table = _blinn_phong_table()
+    table = _exponent_table("blinn-phong")
     return float(_largest_over_nodes(EXPONENT_GRID, lambda k: table[k], e))
-
-
-@functools.lru_cache(maxsize=2)
-def _phong_table() -> np.ndarray:
-    theta_i = np.radians(THETA_I_GRID_DEG)
-    out = np.empty(EXPONENT_GRID.size)
-    for n, e in enumerate(EXPONENT_GRID):
-        # directions at angle a from the mirror direction ωr, azimuth p about it
-        a, p, w, cos_a = _lobe_nodes(float(np.sqrt(2.0 / (e + 2.0))))
-        ci, si = np.cos(theta_i)[:, None], np.sin(theta_i)[:, None]
-        cos_o = ci * cos_a + si * np.sin(a) * np.cos(p)  # ωr = (sin θi, 0, cos θi) mirrored
-        value = terms.phong_lobe(cos_a, e) * np.maximum(cos_o, 0.0) * w
-        out[n] = np.max(np.sum(value, axis=-1))
-    return out
 
 
 def phong_max_albedo(e: float) -> float:
     """Largest directional albedo over θi of the unit (normalised) Phong lobe of exponent e."""
-    table = _phong_table()
+    table = _exponent_table("phong")
     return float(_largest_over_nodes(EXPONENT_GRID, lambda k: table[k], e))
 
 

@@ -2,8 +2,9 @@
 
 Layout::
 
-    bundle.json               scalars: format, noise models, white reference, and for every
-                              image its file, shape and provenance (who, when, from what)
+    bundle.json               scalars: format, noise models, white reference, geometry (the
+                              rig's zero offsets and sample tilt), and for every image its
+                              file, shape and provenance (who, when, from what)
     dark-t0.01-iso100.exr     master dark per (exposure s, ISO), DN, black level included
     flat.exr                  flat field, mean 1 per colour
     bad-pixels.exr            1 where a pixel must not be used
@@ -251,3 +252,16 @@ class CalibrationBundle:
         """The stored white-reference measurement, or None."""
         w = self._scalars.get("white")
         return None if w is None else dict(w)
+
+    # -- geometry ---------------------------------------------------------------------------
+    def set_geometry(self, geometry: Mapping[str, Any], prov: Mapping[str, Any]) -> None:
+        """Store the rig's geometric calibration (zero offsets, sample tilt, their covariance:
+        ``acquisition.geometry.alignment.Alignment.to_dict``, and the fit's figures)."""
+        self._scalars["geometry"] = {**dict(geometry), "provenance": dict(prov)}
+        self._save()
+
+    @property
+    def geometry(self) -> dict[str, Any] | None:
+        """The stored geometric calibration, or None."""
+        g = self._scalars.get("geometry")
+        return None if g is None else json.loads(json.dumps(g))

@@ -104,6 +104,9 @@ COMMANDS: dict[str, Command] = {
     "export-exr": Command(
         lambda r, e: ["export", str(e["table"]), "--format", "exr", "-o", str(r / "exr")],
         lambda e: [e["table"]]),
+    "export-bsdf": Command(
+        lambda r, e: ["export", str(e["table"]), "--format", "bsdf", "-o", str(r / "t.bsdf")],
+        lambda e: [e["table"]]),
     "demo": Command(lambda r, e: ["demo", "-o", str(r / "demo")],
                     lambda e: [RIG, EXAMPLES / "plan-demo.toml"]),
     "plan": Command(
@@ -138,7 +141,8 @@ COMMANDS: dict[str, Command] = {
                               _copy_setup("s", "session")),
     **{f"export-{fmt}-default": Command(
         lambda r, e, fmt=fmt: ["export", str(r / "t.h5"), "--format", fmt], _on_disk("t.h5"),
-        _copy_setup("t.h5", "table"), real=fmt != "merl") for fmt in ("merl", "csv", "exr")},
+        _copy_setup("t.h5", "table"), real=fmt not in ("merl", "bsdf"))
+        for fmt in ("merl", "csv", "exr", "bsdf")},
     "lightstage-field-default": Command(
         lambda r, e: ["lightstage", "field", str(r / "l")], _on_disk("l"),
         _copy_setup("l", "lightstage", ("field",)), real=False),

@@ -173,7 +173,7 @@ def test_merl_export_counts_measured_and_nearest_bin_filled_bins(
     report = json.loads(_export(["export", str(iso_path), "--format", "merl", "-o", str(js),
                                  "--json"], capsys))
     assert report == {"path": str(js), "format": "merl", "count": filled,
-                      "measured_bins": measured, "filled_bins": filled}
+                      "measured_bins": measured, "filled_bins": filled, "note": ""}
     assert js.read_bytes() == text.read_bytes()
 
 

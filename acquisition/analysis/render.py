@@ -12,38 +12,18 @@ the bins' mean angles' grid, each unmeasured bin filled from the nearest measure
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
-from scipy.interpolate import RegularGridInterpolator
-from scipy.ndimage import distance_transform_edt
 
+from acquisition.formats.interpolate import Brdf, table_interpolant
 from acquisition.tables import IsotropicTable
 
-Brdf = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""(θi, θr, Δφ) in degrees (arrays of one shape) → (…, 3) sr⁻¹."""
+__all__ = ["Brdf", "render_sphere", "sphere_angles", "table_brdf"]
 
 
 def table_brdf(table: IsotropicTable) -> Brdf:
-    """A continuous BRDF from a table (module docstring); ConfigError-free on empty tables
-    (all zero)."""
-    mean = table.mean
-    measured = table.count > 0
-    if not measured.any():
-        return lambda ti, tr, dp: np.zeros(np.shape(ti) + (3,))
-    idx = distance_transform_edt(~measured, return_distances=False, return_indices=True)
-    filled = mean[tuple(idx)]
-    axes = table.centers()
-    interp = RegularGridInterpolator(axes, filled, method="linear", bounds_error=False,
-                                     fill_value=None)
-
-    def evaluate(ti: np.ndarray, tr: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        pts = np.stack(np.broadcast_arrays(ti, tr, table.normalise_delta_phi(dp)), axis=-1)
-        for k, ax in enumerate(axes):
-            pts[..., k] = np.clip(pts[..., k], ax[0], ax[-1])
-        return np.maximum(interp(pts.reshape(-1, 3)).reshape(pts.shape), 0.0)
-
-    return evaluate
+    """A continuous BRDF from a table (module docstring); all zero for an empty table. The
+    same interpolant :mod:`acquisition.formats.rgl` resamples into ``.bsdf`` files."""
+    return table_interpolant(table)
 
 
 def sphere_angles(size: int, light_dir: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -2,10 +2,11 @@
 embedded PNG, no script, nothing fetched), readable offline in any browser.
 
 Sections: what was measured (rig, plan, material, planned vs actual time, drift, noise model,
-warnings) · physical checks · coverage and count maps · SNR map · polar slices with error
-bars · the θh–θd plane · directional albedo with its band · reciprocity map · fits (parameter
-table with 1σ, residuals) · comparison (against a reference, or the simulated material) · a
-lit sphere rendered from the table.
+warnings) · physical checks · coverage and count maps · SNR map · the uncertainty budget (each
+term's median relative size) · polar slices with error bars · the θh–θd plane · directional
+albedo with its band · reciprocity map · fits (parameter table with 1σ, residuals) ·
+comparison (against a reference, or the simulated material) · a lit sphere rendered from the
+table.
 """
 
 from __future__ import annotations
@@ -155,6 +156,33 @@ def _reciprocity_html(table: IsotropicTable) -> str:
                    + _panels_note(table) + ".")
 
 
+def budget_rows(table: IsotropicTable) -> list[tuple[str, str, str, str, str]]:
+    """One row per term of the table's uncertainty budget: name, correlated or independent,
+    its median and 90th-percentile size relative to the value over the measured bins (green),
+    and what it is."""
+    mean = table.mean[..., figures.GREEN]
+    measured = (table.count > 0) & np.isfinite(mean) & (mean != 0)
+    rows = []
+    for name, term in table.uncertainty_terms.items():
+        rel = np.abs(term.values[..., figures.GREEN][measured] / mean[measured])
+        rel = rel[np.isfinite(rel)]
+        median, p90 = ((f"{np.median(rel) * 100:.3g} %", f"{np.percentile(rel, 90) * 100:.3g} %")
+                       if rel.size else ("–", "–"))
+        rows.append((name, "correlated" if term.correlated else "independent", median, p90,
+                     term.description))
+    return rows
+
+
+def _budget_html(table: IsotropicTable) -> str:
+    rows = budget_rows(table)
+    if not rows:
+        return '<p class="muted">The table carries no uncertainty budget (a version-1 table).</p>'
+    return (_rows(rows, ("term", "between bins", "median u/f", "90 % of bins below", "what"))
+            + '<p class="muted">Each term\'s standard uncertainty relative to the bin\'s value '
+              "(green channel) over the measured bins; std_error is their root sum of "
+              "squares.</p>")
+
+
 def build_html(data: ReportData) -> str:
     """The report's HTML text."""
     t = data.table
@@ -184,6 +212,7 @@ def build_html(data: ReportData) -> str:
               _figure(figures.bin_maps(t, snr, "SNR = f / std_error (lowest channel)", log=True),
                       "SNR maps", "Each bin's mean over its standard uncertainty (log colour)"
                       + _panels_note(t) + "."),
+              "<h2>Uncertainty budget</h2>", _budget_html(t),
               "<h2>Slices</h2>",
               _figure(figures.polar_slices(t, best), "polar slices",
                       "BRDF against θr in and across the plane of incidence, ±1σ."),

@@ -48,6 +48,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "pose_fields", "home_joints", "require_moving_axes",
     ),
     "acquisition.calibrate.radiometric": ("KINDS", "CalibrationRun", "calibrate"),
+    "acquisition.calibrate.geometry": ("GeometryRun", "calibrate_geometry"),
     "acquisition.reduction.point": ("Reduction", "reduce_session"),
     "acquisition.reduction.live": ("LiveReduction",),
     "acquisition.tables": ("IsotropicTable", "MerlTable"),
@@ -118,6 +119,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         scripted_session,
         step_durations,
     )
+    from acquisition.calibrate.geometry import GeometryRun, calibrate_geometry
     from acquisition.calibrate.radiometric import KINDS, CalibrationRun, calibrate
     from acquisition.devices.console import (
         ALL_IDS,

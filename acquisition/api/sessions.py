@@ -25,6 +25,7 @@ from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep
 from acquisition.planning.timing import TimeModel
 from acquisition.reduction.point import Reduction, reduce_session
+from acquisition.session.alignment import alignment_of, bundle_at
 from acquisition.session.capture import CaptureEngine
 from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import SessionFolder, create_session
@@ -206,7 +207,9 @@ def capture(
 ) -> CaptureResult:
     """Create a session folder at ``out`` and capture the plan on the rig.
 
-    ``calibration`` (a file or folder) is copied into the session for provenance.
+    ``calibration`` (a file or folder) is copied into the session for provenance; a bundle's
+    geometric calibration (``gonio calibrate geometry``) is applied by the planner: the joint
+    targets realise each pose on the real rig.
     ``on_open(folder, device_time_s)`` is called once the devices are open (e.g. to start a
     progress ETA from :func:`step_durations`). ``prompt(target)`` asks the operator to put
     the ``"sample"`` or ``"white"`` reference on a real rig (refused without one).
@@ -214,8 +217,9 @@ def capture(
     rig, plan = load_rig(rig_path), load_plan(plan_path)
     _check_before_creating(rig, plan, "gonio capture", sim_faults, prompt)
     material = _check_material(rig, material)
+    planner = Planner.for_plan(rig, plan, alignment_of(bundle_at(calibration), rig))
     folder, _ = create_session(out, rig, plan, material=material, seed=seed,
-                               calibration=calibration, planner=Planner.for_plan(rig, plan))
+                               calibration=calibration, planner=planner)
     return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers,
                        on_open=on_open, prompt=prompt)
 
@@ -353,7 +357,8 @@ def scripted_session(
         material = _check_material(rig, material)
         folder, _ = create_session(out, rig, plan, material=material, seed=seed,
                                    calibration=calibration, scripted=True,
-                                   planner=Planner.for_plan(rig, plan))
+                                   planner=Planner.for_plan(
+                                       rig, plan, alignment_of(bundle_at(calibration), rig)))
     rig = folder.rig()
     spec = folder.info.material
     mat = parse_material(spec) if spec else None

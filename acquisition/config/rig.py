@@ -12,10 +12,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from acquisition.config.simerrors import (
+    BACKLASH_RANGE_DEG,
+    POSITION_NOISE_RANGE_DEG,
+    SOURCE_DIAMETER_RANGE_M,
+    SimErrors,
+    parse_sim_errors,
+)
 from acquisition.config.toml import Section, load_toml
 from acquisition.geometry.kinematics import KINEMATICS, Kinematics, Pose
 from acquisition.geometry.kinematics.lightstage import LightStage
@@ -96,6 +103,11 @@ class AxisConfig:
     profile_acceleration: int
     """X-series units of 214.577 rev/min²."""
     tolerance_deg: float
+    backlash_deg: float = 0.0
+    """The instrument's stated play between servo and arm, deg (``[axes.NAME] backlash_deg``;
+    a simulated rig's default: its ``[simulation.errors]``): the reduction's angular budget."""
+    position_noise_deg: float = 0.0
+    """The stated 1σ of the arm's angle about where the servo stops, deg (likewise)."""
 
 
 @dataclass(frozen=True)
@@ -239,6 +251,11 @@ class RigConfig:
     sim_clock: str = "stepped"
     """``[simulation] clock``: ``"stepped"`` (discrete-event: simulated time is the hardware
     timeline, whatever the host's load) or ``"scaled"`` (``time_scale`` × host time)."""
+    sim_errors: SimErrors | None = None
+    """``[simulation.errors]``: the TRUE misalignments of a simulated rig (None: none)."""
+    light_source_diameter_m: float = 0.0
+    """``[light] source_diameter_m``: the lamp's emitting disc, m (0: a point; a simulated
+    rig's default: its ``[simulation.errors]``): the reduction's source-size term."""
 
     @property
     def simulated(self) -> bool:
@@ -284,7 +301,7 @@ def load_rig(path: str | Path) -> RigConfig:
     geo.check_keys({"light_distance_m", "camera_distance_m", "shadow_cone_deg",
                     "max_elevation_deg", "settle_s"})
     light = top.section("light", {})
-    light.check_keys({"intensity_w_per_sr", "spot_diameter_m"})
+    light.check_keys({"intensity_w_per_sr", "spot_diameter_m", "source_diameter_m"})
     cam = top.section("camera")
     camera = _parse_camera(cam)
     white = _parse_white_reference(top.section("white_reference", {}))
@@ -300,6 +317,8 @@ def load_rig(path: str | Path) -> RigConfig:
     timing.check_keys({"bus_cycle_s"})
     home_sec = top.section("home", {})
     home = _parse_home(home_sec, axes, fixed) if "home" in top else None
+    errors = _parse_errors(top, axes, buses, camera, sample_cfg, fixed)
+    axes = _stated_specs(axes, errors)
 
     rig = RigConfig(
         path=path,
@@ -330,6 +349,10 @@ def load_rig(path: str | Path) -> RigConfig:
                                   min=BUS_CYCLE_RANGE_S[0], max=BUS_CYCLE_RANGE_S[1], unit="s"),
         sample=sample_cfg,
         home=home,
+        sim_errors=errors,
+        light_source_diameter_m=light.number(
+            "source_diameter_m", errors.source_diameter_m if errors else 0.0,
+            min=SOURCE_DIAMETER_RANGE_M[0], max=SOURCE_DIAMETER_RANGE_M[1], unit="m"),
     )
     if home is not None and home.pose_deg is not None:
         _check_home_reachable(home_sec, rig, home.pose_deg)
@@ -345,6 +368,17 @@ def _parse_header(top: Section) -> str:
     if kin not in KINEMATICS:
         raise top.error("kinematics", f"unknown '{kin}' (known: {', '.join(KINEMATICS)})")
     return kin
+
+
+def _parse_errors(top: Section, axes: Mapping[str, AxisConfig], buses: Mapping[str, BusConfig],
+                  camera: CameraConfig, sample: SampleConfig, fixed: bool) -> SimErrors | None:
+    """``[simulation.errors]`` (:mod:`acquisition.config.simerrors`); a light stage has none."""
+    sim = top.section("simulation", {})
+    if fixed and "errors" in sim:
+        raise sim.error("errors", "a light stage has no arms to misalign: remove "
+                                  "[simulation.errors]")
+    simulated = all(b.simulated for b in buses.values()) and camera.driver == "simulated"
+    return parse_sim_errors(sim, axes, simulated=simulated, image_based=sample.image_based)
 
 
 def _parse_simulation(sim: Section) -> tuple[float, str]:
@@ -398,7 +432,8 @@ def _parse_axis(a: Section, name: str, buses: Mapping[str, BusConfig],
     """``[axes.NAME]``: bus, id (recorded in ``ids_seen``), direction, limits in degrees that
     the servo's tick range can reach, zero tick, profile and tolerance."""
     a.check_keys({"bus", "id", "zero_tick", "direction", "min_deg", "max_deg",
-                  "profile_velocity", "profile_acceleration", "tolerance_deg"})
+                  "profile_velocity", "profile_acceleration", "tolerance_deg", "backlash_deg",
+                  "position_noise_deg"})
     bus = a.get("bus", str)
     if bus not in buses:
         raise a.error("bus", f"names bus '{bus}' that [buses] does not declare")
@@ -427,7 +462,26 @@ def _parse_axis(a: Section, name: str, buses: Mapping[str, BusConfig],
                                        max=PROFILE_RANGE[1]),
         tolerance_deg=a.angle("tolerance_deg", 0.5, min=TOLERANCE_RANGE_DEG[0],
                               max=TOLERANCE_RANGE_DEG[1], width=True),
+        backlash_deg=a.angle("backlash_deg", float("nan"), min=BACKLASH_RANGE_DEG[0],
+                             max=BACKLASH_RANGE_DEG[1], width=True),
+        position_noise_deg=a.angle("position_noise_deg", float("nan"),
+                                   min=POSITION_NOISE_RANGE_DEG[0],
+                                   max=POSITION_NOISE_RANGE_DEG[1], width=True),
     )
+
+
+def _stated_specs(axes: Mapping[str, AxisConfig], errors: SimErrors | None
+                  ) -> dict[str, AxisConfig]:
+    """Axes whose backlash and position noise the file did not state take the simulated
+    rig's ``[simulation.errors]`` values (else 0)."""
+    out = {}
+    for name, a in axes.items():
+        backlash = a.backlash_deg if math.isfinite(a.backlash_deg) else (
+            errors.backlash_deg.get(name, 0.0) if errors else 0.0)
+        noise = a.position_noise_deg if math.isfinite(a.position_noise_deg) else (
+            errors.position_noise_deg.get(name, 0.0) if errors else 0.0)
+        out[name] = replace(a, backlash_deg=backlash, position_noise_deg=noise)
+    return out
 
 
 def _parse_camera(cam: Section) -> CameraConfig:

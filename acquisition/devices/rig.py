@@ -12,7 +12,7 @@ rig the operator swaps the sample and the white reference, asked through a promp
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,7 +27,7 @@ from acquisition.simworld.camera import simulated_camera
 from acquisition.simworld.servos import make_clock
 from calibration.linearize import linearize
 from calibration.raw import load_raw
-from drivers.camera import Camera
+from drivers.camera import Camera, CaptureInfo
 from drivers.dynamixel import MotionController
 from drivers.errors import ConfigError
 from drivers.gphoto2 import GPhoto2Camera
@@ -83,9 +83,12 @@ class RigDevices:
         prompt: OperatorPrompt | None = None,
         planner: Planner | None = None,
         sim_collisions: Callable[[], list[str]] | None = None,
+        ports: Mapping[str, str] | None = None,
     ) -> None:
         self.rig = rig
         self.planner = planner or Planner(rig)
+        self.ports = dict(ports or {})
+        """``{axis: port}`` of the bus each axis' servo is on (a simulated bus: its pty)."""
         self._sim_collisions = sim_collisions
         self.motion = motion
         self.camera = camera
@@ -95,9 +98,11 @@ class RigDevices:
         self.seeded_camera = seeded_camera
         self.prompt = prompt
 
-    def move_to(self, joints: dict[str, float]) -> dict[str, float]:
+    def move_to(self, joints: Mapping[str, float], *, routed: bool = True) -> dict[str, float]:
         """Health-checked, guarded, readback-confirmed move, routed round the other arm when
-        the direct one is not safe; returns the read-back joints (deg).
+        the direct one is not safe; returns the read-back joints (deg) of every axis.
+        ``routed=False`` moves only the named axes, straight: a move the guard finds unsafe is
+        refused (one line, nothing sent) instead of routed.
 
         Before the move the servos' temperature and supply voltage are read; out of range, the
         move waits (see :class:`HealthGuard`) and raises :class:`ServoHealthError` if they do
@@ -105,7 +110,11 @@ class RigDevices:
         """
         if self.health is not None:
             self.health.wait_until_healthy()
-        readback = routed_move(self.motion, self.planner, joints)
+        if routed:
+            readback = routed_move(self.motion, self.planner, joints)
+        else:
+            self.motion.move_to(joints)
+            readback = self.motion.where_deg()
         if self.rig.settle_s:
             if self.clock is not None:
                 self.clock.sleep(self.rig.settle_s)
@@ -113,13 +122,12 @@ class RigDevices:
                 time.sleep(self.rig.settle_s)
         return dict(readback)
 
-    def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
+    def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> CaptureInfo:
         """Expose one RAW frame; ``frame_seed`` fixes a simulated camera's noise (resumes
         re-shoot identical frames) and is meaningless to a real one."""
         if self.seeded_camera:
-            self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)  # type: ignore[call-arg]
-        else:
-            self.camera.capture(path, exposure_s, iso)
+            return self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)  # type: ignore[call-arg]
+        return self.camera.capture(path, exposure_s, iso)
 
     def present(self, target: str) -> None:
         """Put ``target`` (``"sample"`` or ``"white"``) in front of the camera."""
@@ -212,15 +220,17 @@ def open_devices(
     clock = make_clock(rig) if any_sim else None
     with open_servos(rig, planner, clock=clock, sim_faults=sim_faults, seed=seed,
                      health_limits=health_limits) as servos:
+        ports = {name: servos.bus_of(name).port_name for name in rig.axes}
         if rig.camera.driver == "gphoto2":
             require_operator(rig, prompt)
             with GPhoto2Camera(rig.camera.port) as real_camera:
                 yield RigDevices(rig, servos.motion, real_camera, None, clock,
-                                 health=servos.health, prompt=prompt, planner=planner)
+                                 health=servos.health, prompt=prompt, planner=planner,
+                                 ports=ports)
             return
         assert clock is not None
-        camera, holder = simulated_camera(rig, planner.kinematics, servos.true_joints, material,
+        camera, holder = simulated_camera(rig, servos.true_joints, material,
                                           clock, seed)
         yield RigDevices(rig, servos.motion, camera, holder, clock, health=servos.health,
                          seeded_camera=True, prompt=prompt, planner=planner,
-                         sim_collisions=servos.sim_collisions)
+                         sim_collisions=servos.sim_collisions, ports=ports)

@@ -23,8 +23,7 @@ from acquisition.planning.planner import Planner
 from acquisition.simworld.servos import (
     check_sim_faults,
     make_clock,
-    start_simulated_buses,
-    true_joints,
+    start_simulated_rig,
 )
 from drivers.dynamixel import (
     COMMON_BAUD_RATES,
@@ -40,6 +39,7 @@ from drivers.errors import CollisionError, ConfigError, LimitError
 if TYPE_CHECKING:
     from simulators.clock import SimClock
     from simulators.dynamixel import SimServoBus
+    from simulators.dynamixel.rig import SimRig
 
 LATENCY_SYSFS = SYSFS_USB_SERIAL
 """Where the USB-serial adapters' ``latency_timer`` files live (a test may point it elsewhere)."""
@@ -91,6 +91,8 @@ class ServoRig:
     clock: SimClock | None
     sims: dict[str, SimServoBus] = field(default_factory=dict)
     """The in-process simulators of simulated buses, by bus name (empty on hardware)."""
+    sim_rig: SimRig | None = None
+    """The simulated rig those buses belong to (its arms' true positions), or None."""
 
     @property
     def park(self) -> dict[str, float]:
@@ -117,8 +119,12 @@ class ServoRig:
         return routed_move(self.motion, self.planner, joints, on_route)
 
     def true_joints(self) -> dict[str, float]:
-        """The simulators' TRUE joint angles (deg); simulated buses only."""
-        return true_joints(self.rig, self.sims, self.axes)
+        """The arms' TRUE joint angles (deg) in the simulated world (zero offsets, backlash and
+        position noise included: the driver never sees them); simulated buses only."""
+        if self.sim_rig is None:
+            raise ConfigError(f"{self.rig.path}: no simulated servo bus: the true joints of real "
+                              "arms are not known")
+        return self.sim_rig.sim_true_joints_deg()
 
     def sim_collisions(self) -> list[str]:
         """The arms' contacts the simulators saw (one line each, oldest first)."""
@@ -239,10 +245,11 @@ def open_servos(
         clock = make_clock(rig)
     axes = {name: make_axis(cfg) for name, cfg in rig.axes.items()}
     with ExitStack() as stack:
-        sims = {}
+        sim_rig = None
         if clock is not None:
-            sims = stack.enter_context(start_simulated_buses(
+            sim_rig = stack.enter_context(start_simulated_rig(
                 rig, clock, park_ticks(rig, planner), sim_faults=sim_faults, seed=seed))
+        sims = {} if sim_rig is None else dict(sim_rig.buses)
         buses: dict[str, ServoBus] = {}
         for name, bus_cfg in rig.buses.items():
             port = sims[name].port if name in sims else bus_cfg.port
@@ -270,7 +277,7 @@ def open_servos(
             set_low_latency(buses, rig)
             motion.apply_profiles()
             motion.set_torque(True)
-        yield ServoRig(rig, planner, axes, buses, motion, health, clock, sims)
+        yield ServoRig(rig, planner, axes, buses, motion, health, clock, sims, sim_rig)
 
 
 def set_low_latency(buses: Mapping[str, ServoBus], rig: RigConfig) -> None:

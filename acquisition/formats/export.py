@@ -1,7 +1,9 @@
-"""BRDF tables into the field's formats (MERL binary, CSV, EXR slices) and table summaries.
+"""BRDF tables into the field's formats (MERL binary, CSV, EXR slices, RGL ``.bsdf``) and
+table summaries.
 
-Inputs are a ``gonio-isotropic-brdf`` HDF5 table (``gonio reduce``) or a MERL ``.binary``
-file. See docs/formats.md for every output layout.
+Inputs are a ``gonio-isotropic-brdf`` HDF5 table (``gonio reduce``), a MERL ``.binary``
+file or an RGL ``.bsdf`` file (evaluated on the MERL grid for MERL, CSV and EXR). See
+docs/formats.md for every output layout.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ from acquisition.formats.merl import (
     write_merl,
 )
 from acquisition.formats.merl import WHAT as MERL_WHAT
+from acquisition.formats.rgl import WHAT as BSDF_WHAT
+from acquisition.formats.rgl import RglBsdf, is_gonio_bsdf, read_bsdf
+from acquisition.formats.tensorfile import is_tensor_file
 from acquisition.geometry.halfdiff import MERL_BINS, MERL_SHAPE, angles_from_halfdiff, merl_bin_edges
 from acquisition.tables import IsotropicTable, MerlTable
 from acquisition.tables.isotropic import load_merl_h5
@@ -42,21 +47,28 @@ class ExportFormat(StrEnum):
     MERL = "merl"
     CSV = "csv"
     EXR = "exr"
+    BSDF = "bsdf"
+    """RGL-EPFL tensor file for Mitsuba 3's ``measured`` plug-in (:mod:`acquisition.formats.rgl`)."""
 
 
-DEFAULT_SUFFIX = {ExportFormat.MERL: ".binary", ExportFormat.CSV: ".csv", ExportFormat.EXR: "-exr"}
+DEFAULT_SUFFIX = {ExportFormat.MERL: ".binary", ExportFormat.CSV: ".csv", ExportFormat.EXR: "-exr",
+                  ExportFormat.BSDF: ".bsdf"}
 
 
-def load_table(path: str | os.PathLike[str]) -> Table:
-    """An isotropic HDF5 table or a MERL file, told apart by content (MERL: exact size)."""
+def load_table(path: str | os.PathLike[str]) -> Table | RglBsdf:
+    """An isotropic HDF5 table, a MERL file or an RGL ``.bsdf``, told apart by content (MERL:
+    exact size; ``.bsdf``: the tensor-file magic)."""
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{path} is a folder: give its table (`gonio reduce {path}` writes "
-                          f"{path / 'brdf.h5'}) or a MERL .binary file")
+                          f"{path / 'brdf.h5'}), a MERL .binary or an RGL .bsdf file")
     if not path.is_file():
-        raise ConfigError(f"table {path} does not exist: give a .h5 table or a MERL .binary file")
+        raise ConfigError(f"table {path} does not exist: give a .h5 table, a MERL .binary or an "
+                          "RGL .bsdf file")
     if path.stat().st_size == MERL_FILE_BYTES:
         return read_merl(path)
+    if is_tensor_file(path):
+        return read_bsdf(path)
     return IsotropicTable.load_h5(path)
 
 
@@ -129,9 +141,18 @@ class Exported:
     """Bins of the source table that hold a measurement."""
     filled_bins: int = 0
     """MERL bins given a value by the nearest measured isotropic bin (not measured there)."""
+    note: str = ""
+    """What else the line says (``.bsdf``: where the NDF came from; a ``.bsdf`` source: the
+    MERL grid it was evaluated on)."""
 
     def line(self) -> str:
         """The one-line report (``gonio export``)."""
+        if self.format == ExportFormat.BSDF:
+            what = f"{self.measured_bins} measured bins" if self.measured_bins else "a .bsdf"
+            return (f"{self.path}: {what} resampled onto {self.count:,} RGL "
+                    f"nodes; NDF {self.note}")
+        if self.note:
+            return f"{self.path}: {self.count:,} values from {self.note}"
         if self.format == ExportFormat.EXR:
             return f"{self.path}: {self.count} images of {self.measured_bins} measured bins"
         if self.filled_bins:
@@ -242,6 +263,10 @@ def export_exr(table: Table, out: Path, inputs: Inputs = ()) -> list[Path]:
     return paths
 
 
+_WHAT = {ExportFormat.MERL: (MERL_WHAT, is_merl_file), ExportFormat.CSV: (CSV_WHAT, is_csv_export),
+         ExportFormat.BSDF: (BSDF_WHAT, is_gonio_bsdf)}
+
+
 def export_table(
     table_path: str | os.PathLike[str], fmt: ExportFormat | str, out: str | os.PathLike[str] | None
 ) -> Exported:
@@ -249,17 +274,29 @@ def export_table(
     try:
         fmt = ExportFormat(fmt)
     except ValueError:
-        raise ConfigError(f"unknown export format {fmt!r}: use merl, csv or exr") from None
+        raise ConfigError(f"unknown export format {fmt!r}: use "
+                          + ", ".join(f.value for f in ExportFormat)) from None
     src = Path(table_path)
     dest = Path(out) if out else src.with_name(src.stem + DEFAULT_SUFFIX[fmt])
     inputs = (src,)
     if fmt is ExportFormat.EXR:
         check_folder(dest, what="EXR folder", inputs=inputs)
     else:  # refuse before loading the table
-        check_output(dest, what=MERL_WHAT if fmt is ExportFormat.MERL else CSV_WHAT,
-                     ours=is_merl_file if fmt is ExportFormat.MERL else is_csv_export,
-                     inputs=inputs)
-    table = load_table(src)
+        check_output(dest, what=_WHAT[fmt][0], ours=_WHAT[fmt][1], inputs=inputs)
+    loaded = load_table(src)
+    if fmt is ExportFormat.BSDF:
+        from acquisition.formats.rgl_export import export_bsdf
+
+        measured = (int((loaded.count > 0).sum()) if isinstance(loaded, IsotropicTable)
+                    else int(loaded.measured.sum()) if isinstance(loaded, MerlBRDF) else 0)
+        nodes, ndf_source = export_bsdf(loaded, dest, src, inputs)
+        return Exported(dest, fmt.value, nodes, measured, note=ndf_source)
+    note = ""
+    if isinstance(loaded, RglBsdf):
+        from acquisition.formats.rgl_export import bsdf_as_merl
+
+        loaded, note = bsdf_as_merl(loaded), f"the .bsdf evaluated at the MERL bin centres of {src}"
+    table: Table = loaded
     measured = int(table.measured.sum()) if isinstance(table, MerlBRDF) else int((table.count > 0).sum())
     if fmt is ExportFormat.MERL:
         merl = load_merl_h5(src) if isinstance(table, IsotropicTable) else None
@@ -268,10 +305,10 @@ def export_table(
             return Exported(dest, fmt.value, n, n, 0)
         n = export_merl(table, dest, inputs)
         filled = 0 if isinstance(table, MerlBRDF) else n
-        return Exported(dest, fmt.value, n, measured, filled)
+        return Exported(dest, fmt.value, n, measured, filled, note)
     if fmt is ExportFormat.CSV:
-        return Exported(dest, fmt.value, export_csv(table, dest, inputs), measured)
-    return Exported(dest, fmt.value, len(export_exr(table, dest, inputs)), measured)
+        return Exported(dest, fmt.value, export_csv(table, dest, inputs), measured, note=note)
+    return Exported(dest, fmt.value, len(export_exr(table, dest, inputs)), measured, note=note)
 
 
 # ------------------------------------------------------------------------------ info
@@ -311,9 +348,16 @@ class TableInfo:
 
 
 def table_info(path: str | os.PathLike[str]) -> TableInfo:
-    """Coverage, units and provenance of an isotropic table or a MERL file."""
+    """Coverage, units and provenance of an isotropic table, a MERL file or an RGL ``.bsdf``."""
     path = Path(path)
     table = load_table(path)
+    if isinstance(table, RglBsdf):
+        from acquisition.formats.rgl_export import bsdf_summary
+
+        about = bsdf_summary(table)
+        return TableInfo(path, "RGL .bsdf (tensor file, RGB)", about["shape"], about["axes"],
+                         about["nodes"], "rgb = f · cos θ(light) · 4σ/D on the warped grid "
+                         "(the renderer's value f · cos θ, sr⁻¹)", None, about["provenance"], None)
     if isinstance(table, MerlBRDF):
         meas = table.measured
         vals = table.values[meas]

@@ -113,9 +113,9 @@ class LightStageDevices:
         self.set_levels(levels)
         return dict(joints)
 
-    def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> None:
+    def capture(self, path: Path, exposure_s: float, iso: int, frame_seed: int) -> CaptureInfo:
         """Expose one frame; raises HardwareError unless the whole exposure lay under the
-        commanded, settled light state."""
+        commanded, settled light state. Returns what the camera reports of it."""
         if self.seeded_camera:
             info = self.camera.capture(path, exposure_s, iso, frame_seed=frame_seed)  # type: ignore[call-arg]
             start, end = info.timestamp, info.timestamp + info.exposure_s
@@ -130,6 +130,7 @@ class LightStageDevices:
                 f"frame {Path(path).name} was exposed while the light state was not surely on "
                 "(DMX timing); resume the session to retake it"
             )
+        return info
 
     def present(self, target: str) -> None:
         """Put ``target`` under the dome: the simulated holder, else the operator (lights off

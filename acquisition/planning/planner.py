@@ -45,12 +45,15 @@ import numpy as np
 
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import DEFAULT_CLEARANCE_M, ArmConfig, ArmsConfig, FootprintConfig, RigConfig
+from acquisition.geometry.alignment import Alignment
+from acquisition.geometry.approach import approach_point
 from acquisition.geometry.kinematics import Joints, Kinematics, Pose, poses_to_array
 from acquisition.geometry.kinematics.base import (
     angle_between_deg_array,
     directions_from_poses,
     wrap_deg_array,
 )
+from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
 from acquisition.planning import ordering, refusals
 from acquisition.planning.paths import (
     MEMO_SIZE,
@@ -205,6 +208,15 @@ class Planner:
         matrix of move times, seconds of work for a few thousand poses), "nearest" (each pose
         entered by its cheapest move; fast) or "auto" (Held–Karp up to
         :data:`HELD_KARP_AUTO_MAX` poses).
+    alignment:
+        The rig's geometric calibration (zero offsets, sample tilt, backlash): the joint
+        targets then realise each pose on the real rig, and the guard checks the joints it
+        sends with the arms where the calibration puts them
+        (:class:`~acquisition.geometry.kinematics.calibrated.CalibratedKinematics`).
+    approach:
+        Approach every target from one side (:mod:`acquisition.geometry.approach`: a leg to
+        just below it first, guarded like any other); default: when the rig file states
+        backlash on an axis, or the calibration measured some.
     """
 
     def __init__(
@@ -219,9 +231,18 @@ class Planner:
         reference_every: int = 0,
         time_budget_s: float = 2.0,
         bound: str = "auto",
+        alignment: Alignment | None = None,
+        approach: bool | None = None,
     ) -> None:
         self.rig = rig
+        self.alignment = alignment
+        if approach is None:
+            approach = any(a.backlash_deg > 0 for a in rig.axes.values()) or (
+                alignment is not None and any(alignment.backlash_deg.values()))
+        self.approach = approach
         self.kinematics: Kinematics = rig.kinematics()
+        if alignment is not None and self.kinematics.moving_arms:
+            self.kinematics = CalibratedKinematics(self.kinematics, alignment)
         self.shadow_cone_deg = rig.shadow_cone_deg if shadow_cone_deg is None else shadow_cone_deg
         self.max_elevation_deg = (
             rig.max_elevation_deg if max_elevation_deg is None else max_elevation_deg
@@ -276,8 +297,10 @@ class Planner:
         return out
 
     @classmethod
-    def for_plan(cls, rig: RigConfig, plan: PlanSpec) -> Planner:
-        """A planner with the plan's constraint, exposure and reciprocity settings."""
+    def for_plan(cls, rig: RigConfig, plan: PlanSpec, alignment: Alignment | None = None
+                 ) -> Planner:
+        """A planner with the plan's constraint, exposure and reciprocity settings (and the
+        rig's geometric calibration, if given)."""
         return cls(
             rig,
             shadow_cone_deg=plan.shadow_cone_deg,
@@ -286,6 +309,7 @@ class Planner:
             reciprocal=plan.reciprocal,
             mirror_delta_phi=plan.mirror_delta_phi,
             reference_every=plan.capture.reference_every,
+            alignment=alignment,
         )
 
     # -- vectorised constraint checks ----------------------------------------------------
@@ -565,11 +589,36 @@ class Planner:
             ``target`` itself is unsafe, or no route exists inside the joint limits (one line).
         """
         full = {**current, **target}
-        self.check_joints(full, self._moving(current, full))
+        moving = self._moving(current, full)
+        self.check_joints(full, moving)
         if not self.kinematics.moving_arms:
             return [full]
-        return route_or_raise(self.router, current, full, self.kinematics.joint_names,
+        names = self.kinematics.joint_names
+        if self.approach and moving:
+            legs = self._approached(current, full)
+            if legs is not None:
+                return legs
+        return route_or_raise(self.router, current, full, names,
                               lambda problem: self.describe(problem, routed=False))
+
+    def _approached(self, current: Mapping[str, float], full: Mapping[str, float]
+                    ) -> list[Joints] | None:
+        """The legs of a move that approaches ``full`` from the side every capture approaches
+        from (through :func:`~acquisition.geometry.approach.approach_point`), or None where
+        that point or its last leg is not safe (the move then goes straight)."""
+        names = self.kinematics.joint_names
+        lower = {n: self.kinematics.limits[n].min_deg for n in names}
+        pre = approach_point({n: full[n] for n in names}, lower)
+        try:
+            self.check_joints(pre)
+            legs = route_or_raise(self.router, current, pre, names,
+                                  lambda problem: self.describe(problem, routed=False))
+        except (LimitError, CollisionError):
+            return None
+        if self.paths.problem(self.kinematics.to_array(pre), self.kinematics.to_array(full),
+                              names) is not None:
+            return None
+        return [*legs, dict(full)]
 
     def route_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
         """Motion time (s) of :meth:`route` (the direct move's when it is safe or unroutable)."""

@@ -1,5 +1,6 @@
 """Reduction of a session's frames into BRDF tables: point (ROI) and per-pixel reduction,
-the imaging geometry of image-based rigs, and the live estimate.
+the imaging geometry of image-based rigs, the geometric calibration's model of where each
+sample was taken, its angular uncertainty, and the live estimate.
 
 May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
 ``acquisition.tables``, ``acquisition.formats``, ``calibration``, ``drivers.errors``.

@@ -62,6 +62,7 @@ from acquisition.reduction.point import (
     noise_source,
     session_provenance,
 )
+from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
@@ -138,9 +139,13 @@ def sample_frames(records: list[StepRecord], complete: set[int]) -> list[list[St
 
 
 def _geometry(rig: RigConfig, rec: StepRecord, shape: tuple[int, int],
-              target: str | None = None) -> PixelGeometry:
-    g = rig.kinematics().forward_geometry(rec.joints_read or rec.joints_cmd)
-    return frame_geometry(rig, g.light_dir, g.camera_dir, shape, target)
+              target: str | None = None, model: SampleGeometry | None = None) -> PixelGeometry:
+    """A frame's per-pixel geometry, through the geometric calibration's model (arms, tilt,
+    the camera's pointing) when ``model`` gives one."""
+    model = model or SampleGeometry.of(rig, None)
+    g = model.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
+    return frame_geometry(rig, g.light_dir, g.camera_dir, shape, target,
+                          pointing_deg=model.pointing_deg)
 
 
 def white_calibration(
@@ -208,6 +213,7 @@ def iter_session_samples(
     if not rig.sample.image_based:
         raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
     cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
+    model = SampleGeometry.of(rig, cb)
     with folder.journal(readonly=True) as journal:
         records = [r for r in journal.steps() if r.status == "done"]
         complete = {g for g in {hdr_group(r.note) for r in records} - {None}
@@ -221,7 +227,7 @@ def iter_session_samples(
         image = check.load(rec.frame, lambda rec=rec: _linear(folder, rig, rec, cb))
         if image is None:
             continue
-        geo = _geometry(rig, rec, image.valid.shape, "flat")
+        geo = _geometry(rig, rec, image.valid.shape, "flat", model)
         cal, n = white_calibration(image, geo, rig.camera.roi, rho)
         if n == 0:
             raise SessionError(
@@ -246,7 +252,7 @@ def iter_session_samples(
             _linear(folder, rig, rec, cb) if plain else _merged(folder, rig, recs, cb)))
         if image is None:
             continue
-        geo = _geometry(rig, rec, image.valid.shape)
+        geo = _geometry(rig, rec, image.valid.shape, model=model)
         cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
         w = np.array([np.interp(rec.step, ref_steps, eye[k]) for k in range(len(steps))])
         yield frame_samples(image, geo, cal, rec.step, min_cos, np.sqrt(w**2 @ ref_vars) / cal)

@@ -27,7 +27,7 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -86,6 +86,18 @@ class PinholeCamera:
         down = np.cross(forward, right)
         fx, fy, cx, cy = intrinsics
         return cls(fx, fy, cx, cy, shape, c * distance_m, np.stack([right, down, forward]))
+
+    def pointed(self, x_deg: float, y_deg: float) -> PinholeCamera:
+        """The camera with its optical axis turned towards its image's +x by ``x_deg``, then
+        towards +y by ``y_deg`` (a pointing error: the point it aimed at moves to −x, −y)."""
+        if not x_deg and not y_deg:
+            return self
+        right, down, forward = self.rotation
+        f = forward + np.tan(np.radians(x_deg)) * right + np.tan(np.radians(y_deg)) * down
+        f /= np.linalg.norm(f)
+        r = right - (right @ f) * f
+        r /= np.linalg.norm(r)
+        return replace(self, rotation=np.stack([r, np.cross(f, r), f]))
 
     def ray_directions(self) -> np.ndarray:
         """Unit ray directions (rows, columns, 3) through every pixel centre, sample frame."""
@@ -260,12 +272,22 @@ def frame_geometry(
     camera_dir: np.ndarray,
     shape_superpixels: tuple[int, int],
     target_shape: str | None = None,
+    *,
+    pointing_deg: tuple[float, float] = (0.0, 0.0),
+    light_pos: np.ndarray | None = None,
+    sample: SampleConfig | None = None,
 ) -> PixelGeometry:
     """:func:`pixel_geometry` for the rig's camera and light at the given arm directions
-    (unit vectors in the sample frame, e.g. from ``Kinematics.forward_geometry``)."""
+    (unit vectors in the sample frame, e.g. from ``Kinematics.forward_geometry``).
+
+    ``pointing_deg``: the camera's optical axis turned towards the image's +x, then +y (deg;
+    a calibrated pointing error, :meth:`PinholeCamera.pointed`); ``light_pos``: the light's
+    position (m; default ``light_distance_m`` along ``light_dir``); ``sample``: the sample's
+    shape and place (default the rig file's)."""
     camera = PinholeCamera.looking_at_origin(
         camera_intrinsics(rig, shape_superpixels), shape_superpixels, camera_dir,
         rig.camera_distance_m,
-    )
-    light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
-    return pixel_geometry(camera, light_pos, rig.sample, target_shape)
+    ).pointed(*pointing_deg)
+    if light_pos is None:
+        light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
+    return pixel_geometry(camera, light_pos, sample or rig.sample, target_shape)

@@ -23,8 +23,21 @@ ROI — and every sample carries two terms into its bin:
 * ``white_reference`` (correlated: one reference normalises many samples):
   f · √(var S_ref) / S_ref, the noise of the interpolated white reference.
 
-Each bin's ``std_error`` is their root sum of squares; :attr:`Reduction.predicted_variance`
-is its square. Each bin also keeps the mean read-back (θi, θr, Δφ) of its samples.
+On a rig whose file states backlash, position noise or a lamp of finite size, or with a
+geometric calibration applied (:mod:`acquisition.reduction.angular`), a sample also carries
+
+* ``angular`` (independent): where the arms really stood, through the BRDF's local slope;
+* ``source_size`` (independent): the uncertainty of the correction for the lamp's blur (the
+  value is corrected for it);
+* ``geometry_calibration`` (correlated): the calibration's own 1σ.
+
+With a geometric calibration (the bundle's ``geometry`` section) the read-back joints go
+through the calibrated model (:class:`~acquisition.reduction.samplegeometry.SampleGeometry`):
+it gives the samples' angles, cos θi (and the white reference's) and their bins.
+
+Each bin's ``std_error`` is the root sum of squares of its terms;
+:attr:`Reduction.predicted_variance` is its square. Each bin also keeps the mean read-back
+(θi, θr, Δφ) of its samples.
 
 An HDR session's bracket (journal rows noted ``hdr=<first step>:<k>``) is one sample: its
 frames are linearized with variances (the bundle's noise model, else a simulated camera's
@@ -47,7 +60,16 @@ from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import nominal_noise_model
 from acquisition.geometry.kinematics import Pose
+from acquisition.reduction.angular import (
+    ANGULAR_TERM,
+    CALIBRATION_TERM,
+    SOURCE_CORRECTION_FRACTION,
+    SOURCE_TERM,
+    AngularSources,
+    angular_terms,
+)
 from acquisition.reduction.badframes import FrameCheck
+from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
@@ -106,11 +128,12 @@ def session_provenance(folder: SessionFolder, rig: RigConfig, plan: PlanSpec,
 
 
 def binning_pose(rec: StepRecord) -> Pose:
-    """The bin a step's sample goes to: its commanded pose.
+    """The bin a step's sample goes to without a geometric calibration: its commanded pose.
 
     The read-back geometry (used for the value's cos θi) lies within the motion tolerance of
     the command; binning by the command keeps poses whose azimuth is degenerate (θ ≈ 0) in
-    one deterministic bin, so a resumed session bins exactly like an uninterrupted one.
+    one deterministic bin, so a resumed session bins exactly like an uninterrupted one
+    (:meth:`SampleGeometry.bin_pose` with a calibration).
     """
     return Pose(rec.theta_i, rec.theta_r, rec.delta_phi)
 
@@ -221,6 +244,7 @@ def reduce_session(
     *,
     bundle: str | Path | None = None,
     reference_axis: str = "step",
+    geometry: bool = True,
 ) -> Reduction:
     """Linearize every captured frame of a session and bin it into its plan's table.
 
@@ -236,6 +260,9 @@ def reduce_session(
         interrupted and resumed session reduces exactly like an uninterrupted one);
         ``"time"`` by capture time (device clock where it never runs back, else host clock),
         which follows a light drift through uneven step durations.
+    geometry:
+        Apply the bundle's geometric calibration (default); False reduces with the rig
+        file's geometry as if the bundle had none (to see what the calibration changes).
     """
     if reference_axis not in ("step", "time"):
         raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
@@ -247,29 +274,102 @@ def reduce_session(
         from acquisition.reduction.image import reduce_image_session  # imports reduce: load lazily
 
         return reduce_image_session(folder, progress, bundle=bundle)
-    kin = rig.kinematics()
+    geo = SampleGeometry.of(rig, cal, calibrated=geometry)
     records, complete = _done_records(folder)
     frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),
                             FrameCheck(folder.path))
     refs = _reference_signals(frames, records)
-    white = _WhiteScale.of(refs, rig)
+    white = _WhiteScale.of(refs, rig, _reference_cos(geo, records, rig))
     drift = _drift_pct(refs)
     table = _new_table(folder, rig, plan, drift, cal)
     table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
-    table.track_uncertainty(UNCERTAINTY_TERMS[0], UNCERTAINTY_TERMS[1])
     poses, brackets = _samples(records, complete)
-    for k, rec in enumerate(poses):
-        fs = frames.sample(rec, brackets)
-        read_back = kin.forward(rec.joints_read or rec.joints_cmd)
-        cos_i = np.cos(np.radians(read_back.theta_i))
-        if fs is None or fs.n_valid == 0 or cos_i <= 0:
-            continue
-        _add_sample(table, binning_pose(rec), read_back, fs, white, frames.when[rec.step], cos_i)
-        if progress:
-            progress(k + 1, len(poses))
+    samples = _collect(poses, frames, brackets, geo, white, progress)
     frames.check.raise_if_any()
+    _bin_samples(table, samples, rig, geo)
     return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0,
                      table.std_error**2, None if cal is None else cal.path)
+
+
+@dataclass(frozen=True)
+class _Sample:
+    """One sample before binning: where it goes, where it lies, its value and noise terms."""
+
+    bin_pose: Pose
+    read_back: Pose
+    joints: dict[str, float]
+    value: np.ndarray
+    noise_var: np.ndarray
+    white_u: np.ndarray
+
+
+def _collect(poses: list[StepRecord], frames: _SessionFrames, brackets: dict[int, list[StepRecord]],
+             geo: SampleGeometry, white: _WhiteScale,
+             progress: Callable[[int, int], None] | None) -> list[_Sample]:
+    """Every usable sample's value f = S / S_ref · (ρ / π) · (cos θi_ref / cos θi), sr⁻¹, with
+    its noise (f² var S / S²) and white-reference (f √var S_ref / S_ref) terms."""
+    out = []
+    for k, rec in enumerate(poses):
+        fs = frames.sample(rec, brackets)
+        read_back = geo.read_back(rec)
+        cos_i = np.cos(np.radians(read_back.theta_i))
+        if fs is not None and fs.n_valid > 0 and cos_i > 0:
+            when = frames.when[rec.step]
+            ref = white.at(when)
+            f = fs.signal / ref * (white.rho / np.pi) * (white.cos_ref / cos_i)
+            out.append(_Sample(geo.bin_pose(rec), read_back, rec.joints_read or rec.joints_cmd,
+                               f, f**2 * fs.variance / fs.signal**2,
+                               np.abs(f) * np.sqrt(white.var_at(when)) / ref))
+        if progress:
+            progress(k + 1, len(poses))
+    return out
+
+
+def _bin_samples(table: IsotropicTable, samples: list[_Sample], rig: RigConfig,
+                 geo: SampleGeometry) -> None:
+    """Bin the samples with their budget: the noise and white-reference terms, and where the
+    rig states backlash or position noise, or a geometric calibration is applied, the angular
+    terms (:mod:`acquisition.reduction.angular`)."""
+    sources = AngularSources.of(rig, geo.kinematics, geo.alignment)
+    independent, correlated = dict(UNCERTAINTY_TERMS[0]), dict(UNCERTAINTY_TERMS[1])
+    for on, term, where in ((sources.independent, ANGULAR_TERM, independent),
+                            (sources.source, SOURCE_TERM, independent),
+                            (sources.correlated, CALIBRATION_TERM, correlated)):
+        if on:
+            where.update(term)
+    table.track_uncertainty(independent, correlated)
+    names = geo.kinematics.joint_names
+    joints = np.array([[s.joints[n] for n in names] for s in samples]).reshape(-1, len(names))
+    claimed = np.array([s.read_back.as_tuple() for s in samples]).reshape(-1, 3)
+    values = np.array([s.value for s in samples]).reshape(-1, 3)
+    ang = angular_terms(sources, geo.kinematics, geo.base, joints, claimed, values)
+    for k, s in enumerate(samples):
+        variances = {"noise": s.noise_var[None, :]}
+        uncertainties = {"white_reference": s.white_u[None, :]}
+        value = s.value / (1.0 + ang.source_bias[k])  # the lamp's blur corrected (0 for a point)
+        if sources.independent:
+            variances["angular"] = ang.variance[k][None, :]
+        if sources.source:
+            variances["source_size"] = (SOURCE_CORRECTION_FRACTION * ang.source_bias[k]
+                                        * value)[None, :] ** 2
+        if sources.correlated:
+            uncertainties["geometry_calibration"] = ang.calibration[k][None, :]
+        p, r = s.bin_pose, s.read_back
+        table.add(np.array([p.theta_i]), np.array([p.theta_r]), np.array([p.delta_phi]),
+                  value[None, :], at=(np.array([r.theta_i]), np.array([r.theta_r]),
+                                        np.array([r.delta_phi])),
+                  variances=variances, uncertainties=uncertainties)
+    if geo.alignment is not None:
+        table.provenance["geometry_calibration"] = geo.alignment.to_dict()
+
+
+def _reference_cos(geo: SampleGeometry, records: list[StepRecord], rig: RigConfig) -> float:
+    """cos θi of the white reference: the rig file's angle, or with a geometric calibration
+    the mean over the reference steps' read-back poses."""
+    if geo.alignment is None:
+        return float(np.cos(np.radians(rig.white_reference.theta_i)))
+    refs = [r for r in records if r.kind == REFERENCE]
+    return float(np.mean([np.cos(np.radians(geo.read_back(r).theta_i)) for r in refs]))
 
 
 def _done_records(folder: SessionFolder) -> tuple[list[StepRecord], set[int]]:
@@ -356,11 +456,11 @@ class _WhiteScale:
     """cos θi of the reference's geometry."""
 
     @classmethod
-    def of(cls, refs: list[FrameSignal], rig: RigConfig) -> _WhiteScale:
-        """From the reference frames' signals and the rig's white-reference description."""
+    def of(cls, refs: list[FrameSignal], rig: RigConfig, cos_ref: float) -> _WhiteScale:
+        """From the reference frames' signals, the rig's reference reflectance and the
+        reference's cos θi."""
         at, var_at = reference_curves(refs)
-        wr = rig.white_reference
-        return cls(at, var_at, np.asarray(wr.reflectance, float), np.cos(np.radians(wr.theta_i)))
+        return cls(at, var_at, np.asarray(rig.white_reference.reflectance, float), cos_ref)
 
 
 def _drift_pct(refs: list[FrameSignal]) -> float:
@@ -408,18 +508,3 @@ UNCERTAINTY_TERMS = (
 """(independent, correlated) terms of a point reduction's budget: name → description."""
 
 
-def _add_sample(table: IsotropicTable, pose: Pose, read_back: Pose, fs: FrameSignal,
-                white: _WhiteScale, when: float, cos_i: float) -> None:
-    """Bin one sample's BRDF f = S / S_ref · (ρ / π) · (cos θi_ref / cos θi), sr⁻¹, at its
-    commanded pose, with its uncertainty terms (noise: f² var S / S²; white reference:
-    f √var S_ref / S_ref) and its read-back angles."""
-    ref = white.at(when)
-    f = fs.signal / ref * (white.rho / np.pi) * (white.cos_ref / cos_i)
-    table.add(
-        np.array([pose.theta_i]), np.array([pose.theta_r]), np.array([pose.delta_phi]),
-        f[None, :],
-        at=(np.array([read_back.theta_i]), np.array([read_back.theta_r]),
-            np.array([read_back.delta_phi])),
-        variances={"noise": (f**2 * fs.variance / fs.signal**2)[None, :]},
-        uncertainties={"white_reference": (np.abs(f) * np.sqrt(white.var_at(when)) / ref)[None, :]},
-    )

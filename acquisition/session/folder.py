@@ -28,6 +28,7 @@ from acquisition.config.plan import PlanSpec, load_plan
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep
+from acquisition.session.alignment import alignment_of, bundle_at
 from acquisition.session.hdr import HDR_SWEEP_META
 from acquisition.session.journal import Journal
 from acquisition.session.steps import (
@@ -135,9 +136,12 @@ class SessionFolder:
         self.info = info
 
     def planner(self) -> Planner:
-        """The planner for the session's rig and plan, built once per folder object."""
+        """The planner for the session's rig and plan (and the geometric calibration of its
+        copied calibration bundle, if any), built once per folder object."""
         if self._planner is None:
-            self._planner = Planner.for_plan(self.rig(), self.plan())
+            rig = self.rig()
+            self._planner = Planner.for_plan(rig, self.plan(),
+                                             alignment_of(bundle_at(self.calibration), rig))
         return self._planner
 
     def adopt(self, rig: RigConfig, plan: PlanSpec, planner: Planner | None = None) -> SessionFolder:
@@ -237,7 +241,7 @@ def create_session(
         )
     rig = rig if isinstance(rig, RigConfig) else load_rig(rig)
     plan = plan if isinstance(plan, PlanSpec) else load_plan(plan)
-    planner = planner or Planner.for_plan(rig, plan)
+    planner = planner or Planner.for_plan(rig, plan, alignment_of(bundle_at(calibration), rig))
     ref_pose, ref_joints = reference_geometry(rig, planner)
     sweep = None if scripted else planner.plan(plan.poses(), ref_joints)
     hdr = sweep is not None and plan.capture.hdr

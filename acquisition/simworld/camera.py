@@ -1,5 +1,6 @@
-"""The simulated camera of a servo rig: a RAW sensor rendering the scene the simulated servos'
-true angles make, with the sample holder (sample or white target, lamp drift) in front of it."""
+"""The simulated camera of a servo rig: a RAW sensor rendering the scene the simulated arms'
+true angles make (misalignments included), with the sample holder (sample, white or a
+calibration target, lamp drift) in front of it."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ from collections.abc import Callable
 
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import simulated_sensor
-from acquisition.geometry.kinematics import Kinematics
 from acquisition.simworld.scene import SampleHolder, make_scene, white_material
 from simulators.camera import SimCamera
 from simulators.clock import SimClock
@@ -16,7 +16,6 @@ from simulators.materials import Material
 
 def simulated_camera(
     rig: RigConfig,
-    kinematics: Kinematics,
     true_joints: Callable[[], dict[str, float]],
     material: Material | None,
     clock: SimClock,
@@ -24,12 +23,13 @@ def simulated_camera(
 ) -> tuple[SimCamera, SampleHolder | None]:
     """The rig's simulated camera and, when a material is given, the sample holder it sees.
 
-    ``true_joints()`` gives the simulators' true joint angles (deg) at the moment of exposure.
+    ``true_joints()`` gives the arms' true joint angles (deg) at the moment of exposure; the
+    scene adds the rest of the rig's ``[simulation.errors]`` (:mod:`acquisition.simworld.scene`).
     """
     holder = None
     if material is not None:
         holder = SampleHolder(material, white_material(rig))
         holder.sim_attach(rig, clock)  # the lamp follows the device clock (light drift)
     sensor = simulated_sensor(rig)
-    scene = make_scene(rig, kinematics, true_joints, holder, sensor.superpixel_shape)
+    scene = make_scene(rig, true_joints, holder, sensor.superpixel_shape)
     return SimCamera(sensor, scene, clock, seed=seed), holder

@@ -1,8 +1,10 @@
-"""What the simulated camera sees: the sample under the point light, from the TRUE joint angles.
+"""What the simulated camera sees: the sample under the light, from the TRUE geometry.
 
-The scene reads the simulator's true servo positions (not the driver's belief), turns them
-into light/camera directions through the rig's kinematics, evaluates the material, and returns
-the radiance image (W·sr⁻¹·m⁻²) per superpixel, on a black background.
+The scene reads the arms' true angles from the servo simulator (not the driver's belief: zero
+offsets, backlash and position noise included), turns them into light/camera directions in the
+sample's true frame (tilted, raised, the lamp a disc: :mod:`acquisition.simworld.misalignment`,
+with the simulator's own kinematics), evaluates the material, and returns the radiance image
+(W·sr⁻¹·m⁻²) per superpixel, on a black background.
 
 Two renderers, chosen by the rig file's ``[sample] image_based``:
 
@@ -13,9 +15,10 @@ Two renderers, chosen by the rig file's ``[sample] image_based``:
   the radiance is f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat
   Lambertian plate of the sample's ``size_m`` at the origin, rendered the same way.
 
-Calibration targets (:meth:`SampleHolder.present`): ``"cap"`` (the lens cap: a black frame)
-and ``"uniform"`` (a uniform white target filling the frame, at the white reference's radiance
-for the current geometry).
+Calibration targets (:meth:`SampleHolder.present`): ``"cap"`` (the lens cap: a black frame),
+``"uniform"`` (a uniform white target filling the frame, at the white reference's radiance
+for the current geometry) and ``"mirror"`` (a metal mirror in the sample's place, for the
+geometric calibration: a specular lobe :data:`MIRROR_SPEC` about 2.5° wide at half maximum).
 
 Light drift: the rig file's ``[simulation]`` may make the lamp's intensity a function of the
 device clock t (s), a factor on every lit frame (see :class:`LightDrift`)::
@@ -27,24 +30,28 @@ device clock t (s), a factor on every lit frame (see :class:`LightDrift`)::
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from acquisition.config.rig import RigConfig
+from acquisition.config.rig import RigConfig, SampleConfig
 from acquisition.config.toml import Section
-from acquisition.geometry.kinematics import Kinematics
 from acquisition.reduction.imaging import frame_geometry
+from acquisition.simworld.misalignment import IMAGE_SOURCE_POINTS, TrueGeometry
 from simulators.clock import SimClock
-from simulators.materials import Lambert, Material
+from simulators.materials import Lambert, Material, material_from_spec
 
 SAMPLE_MARGIN_SUPERPIXELS = 4
 """Sample extent beyond the region of interest on each side."""
-TARGETS = ("sample", "white", "cap", "uniform")
+TARGETS = ("sample", "white", "cap", "uniform", "mirror")
 """What :meth:`SampleHolder.present` accepts."""
+MIRROR_SPEC = "ggx:albedo=0,alpha=0.02,f0=0.9"
+"""The ``"mirror"`` target: a metal mirror (90 % reflectance) whose surface is flat to about
+1° (GGX α 0.02), so a coarse scan finds its peak."""
 DRIFT_SHAPES = ("linear", "warmup")
 
 
@@ -103,13 +110,16 @@ class SampleHolder:
 
     def present(self, target: str) -> None:
         """Put ``target`` on the stage (instantaneous in simulation): ``"sample"``,
-        ``"white"`` (reference), ``"cap"`` (lens cap) or ``"uniform"`` (flat-field target)."""
+        ``"white"`` (reference), ``"cap"`` (lens cap), ``"uniform"`` (flat-field target) or
+        ``"mirror"`` (geometric calibration)."""
         if target not in TARGETS:
             raise ValueError(f"unknown target {target!r}: use one of {', '.join(TARGETS)}")
         self.current = target
 
     @property
     def material(self) -> Material:
+        if self.current == "mirror":
+            return material_from_spec(MIRROR_SPEC)
         return self.sample if self.current == "sample" else self.white
 
     def lamp(self) -> float:
@@ -131,26 +141,16 @@ def white_material(rig: RigConfig) -> Material:
     return Lambert(float(np.mean(rig.white_reference.reflectance)))
 
 
-def radiance_at(
-    kinematics: Kinematics, joints: Mapping[str, float], material: Material, intensity_w_per_sr: float
-) -> np.ndarray:
-    """Radiance (3,) leaving the sample centre towards the camera, W·sr⁻¹·m⁻²."""
-    g = kinematics.forward_geometry(joints)
-    f = material.eval_vectors(g.light_dir, g.camera_dir)
-    irradiance = intensity_w_per_sr * max(g.light_dir[2], 0.0) / g.light_distance_m**2
-    return f * irradiance
-
-
 def make_scene(
     rig: RigConfig,
-    kinematics: Kinematics,
     true_joints: Callable[[], dict[str, float]],
     holder: SampleHolder,
     shape_superpixels: tuple[int, int],
 ) -> Callable[[], np.ndarray]:
     """A zero-argument callable giving the radiance image (h, w, 3) the camera sees now."""
+    truth = TrueGeometry(rig)
     if rig.sample.image_based:
-        return make_image_scene(rig, kinematics, true_joints, holder, shape_superpixels)
+        return make_image_scene(rig, truth, true_joints, holder, shape_superpixels)
     h, w = shape_superpixels
     x0, y0, x1, y1 = rig.camera.roi
     m = SAMPLE_MARGIN_SUPERPIXELS
@@ -161,8 +161,8 @@ def make_scene(
         image = np.zeros((h, w, 3))
         if holder.current == "cap":
             return image
-        rad = radiance_at(kinematics, true_joints(), holder.material,
-                          rig.light_intensity_w_per_sr * holder.lamp())
+        rad = truth.radiance(true_joints(), holder.material,
+                             rig.light_intensity_w_per_sr * holder.lamp())
         if holder.current == "uniform":
             image[:] = rad
         else:
@@ -179,34 +179,53 @@ def render_image(
     material: Material,
     shape_superpixels: tuple[int, int],
     target_shape: str | None = None,
+    *,
+    light_points: np.ndarray | None = None,
+    pointing_deg: tuple[float, float] = (0.0, 0.0),
+    sample: SampleConfig | None = None,
 ) -> np.ndarray:
     """Radiance image (h, w, 3), W·sr⁻¹·m⁻², of the sample (or, with ``target_shape="flat"``,
-    the white plate) for arm directions in the sample frame; black off the sample."""
-    geo = frame_geometry(rig, light_dir, camera_dir, shape_superpixels, target_shape)
-    f = material.eval_vectors(geo.wi, geo.wo)
-    return geo.scatter(f * (rig.light_intensity_w_per_sr * geo.irradiance)[:, None])
+    the white plate) for arm directions in the sample frame; black off the sample.
+
+    ``light_points`` (m, 3): the lamp as points sharing its intensity (default: a point at
+    the light's distance); ``pointing_deg``: the camera's pointing error; ``sample``: the
+    sample as it really sits (default the rig file's)."""
+    points = (np.asarray(light_dir, float)[None] * rig.light_distance_m if light_points is None
+              else light_points)
+    image = np.zeros((*shape_superpixels, 3))
+    for point in points:
+        geo = frame_geometry(rig, light_dir, camera_dir, shape_superpixels, target_shape,
+                             pointing_deg=pointing_deg, light_pos=point, sample=sample)
+        f = material.eval_vectors(geo.wi, geo.wo)
+        image += geo.scatter(f * (rig.light_intensity_w_per_sr * geo.irradiance)[:, None])
+    return image / len(points)
 
 
 def make_image_scene(
     rig: RigConfig,
-    kinematics: Kinematics,
+    truth: TrueGeometry,
     true_joints: Callable[[], dict[str, float]],
     holder: SampleHolder,
     shape_superpixels: tuple[int, int],
 ) -> Callable[[], np.ndarray]:
-    """Per-pixel scene of an image-based rig, from the TRUE joint angles at each call."""
+    """Per-pixel scene of an image-based rig, from the TRUE geometry at each call."""
+    errors = truth.errors
+    raised = dataclasses.replace(rig.sample, centre_m=tuple(  # type: ignore[arg-type]
+        c + d for c, d in zip(rig.sample.centre_m, (0.0, 0.0, errors.sample_height_m),
+                              strict=True)))
 
     def scene() -> np.ndarray:
         if holder.current in ("cap", "uniform"):
             image = np.zeros((*shape_superpixels, 3))
             if holder.current == "uniform":
-                image[:] = radiance_at(kinematics, true_joints(), holder.white,
-                                       rig.light_intensity_w_per_sr * holder.lamp())
+                image[:] = truth.radiance(true_joints(), holder.white,
+                                          rig.light_intensity_w_per_sr * holder.lamp())
             return image
-        g = kinematics.forward_geometry(true_joints())
+        light, camera = truth.directions(true_joints())
         target = None if holder.current == "sample" else "flat"
-        image = render_image(rig, g.light_dir, g.camera_dir, holder.material,
-                             shape_superpixels, target)
+        image = render_image(rig, light, camera, holder.material, shape_superpixels, target,
+                             light_points=truth.light_points(light, IMAGE_SOURCE_POINTS),
+                             pointing_deg=errors.camera_pointing_deg, sample=raised)
         return image * holder.lamp()
 
     return scene

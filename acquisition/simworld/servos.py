@@ -8,7 +8,6 @@ from contextlib import contextmanager
 
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.kinematics.lightstage import LightStage
-from drivers.dynamixel import Axis
 from drivers.errors import ConfigError
 from simulators.clock import SimClock, SteppedClock
 from simulators.dynamixel import SimServoBus
@@ -61,6 +60,37 @@ def scaled_clock(rig: RigConfig) -> SimClock:
 
 
 @contextmanager
+def start_simulated_rig(
+    rig: RigConfig,
+    clock: SimClock,
+    start_ticks: Mapping[str, float],
+    *,
+    sim_faults: Sequence[str] = (),
+    seed: int = 0,
+) -> Iterator[SimRig | None]:
+    """Start a simulator for every ``simulated = true`` bus, each servo at ``start_ticks[axis]``,
+    with the rig's solid parts: arms that touch stall and trip on overload, as hardware would
+    (:class:`simulators.dynamixel.rig.SimRig`, its own model of the arms), and its gears: the
+    arms stand where ``[simulation.errors]`` puts them (zero offsets, backlash, position noise,
+    seeded by ``seed``), not where the ticks say. None when no bus is simulated.
+
+    The servos are deaf at any other baud rate than the rig file's (``strict_baud``), like a
+    real bus, so ``gonio scan`` finds them at that rate only. Collisions are recorded on the
+    buses (``SimServoBus.sim_collisions()``).
+    """
+    names = [n for n, b in rig.buses.items() if b.simulated]
+    if not names:
+        yield None
+        return
+    with SimRig(rig.raw, clock=clock, faults=list(sim_faults), seed=seed, strict_baud=True,
+                wire_time="auto",  # on the stepped clock: charged to it
+                positions_ticks={a: start_ticks[a] for a, cfg in rig.axes.items()
+                                 if cfg.bus in names},
+                buses=names) as sim_rig:
+        yield sim_rig
+
+
+@contextmanager
 def start_simulated_buses(
     rig: RigConfig,
     clock: SimClock,
@@ -69,31 +99,7 @@ def start_simulated_buses(
     sim_faults: Sequence[str] = (),
     seed: int = 0,
 ) -> Iterator[dict[str, SimServoBus]]:
-    """Start a simulator for every ``simulated = true`` bus, each servo at ``start_ticks[axis]``,
-    with the rig's solid parts: arms that touch stall and trip on overload, as hardware would
-    (:class:`simulators.dynamixel.rig.SimRig`, its own model of the arms).
-
-    The servos are deaf at any other baud rate than the rig file's (``strict_baud``), like a
-    real bus, so ``gonio scan`` finds them at that rate only. Collisions are recorded on the
-    buses (``SimServoBus.sim_collisions()``).
-    """
-    names = [n for n, b in rig.buses.items() if b.simulated]
-    if not names:
-        yield {}
-        return
-    with SimRig(rig.raw, clock=clock, faults=list(sim_faults), seed=seed, strict_baud=True,
-                wire_time="auto",  # on the stepped clock: charged to it
-                positions_ticks={a: start_ticks[a] for a, cfg in rig.axes.items()
-                                 if cfg.bus in names},
-                buses=names) as sim_rig:
-        yield dict(sim_rig.buses)
-
-
-def true_joints(rig: RigConfig, sims: Mapping[str, SimServoBus], axes: Mapping[str, Axis]
-                ) -> dict[str, float]:
-    """The simulators' TRUE joint angles (deg) of every axis (all buses simulated)."""
-    out = {}
-    for name, cfg in rig.axes.items():
-        ticks = sims[cfg.bus].servos[cfg.servo_id].sim_true_position_ticks()
-        out[name] = axes[name].ticks_to_deg(ticks)
-    return out
+    """:func:`start_simulated_rig`'s buses, ``{bus name: SimServoBus}`` (empty when none)."""
+    with start_simulated_rig(rig, clock, start_ticks, sim_faults=sim_faults,
+                             seed=seed) as sim_rig:
+        yield {} if sim_rig is None else dict(sim_rig.buses)

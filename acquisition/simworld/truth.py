@@ -1,8 +1,10 @@
 """Ground truth for simulated sessions: the material's BRDF binned at the measured geometry.
 
-Binning the true BRDF at the same read-back poses as the measurement gives a table that
-differs from the measured one only by measurement error, which is what tests and the demo
-report (median relative error over measured bins).
+Binning the true BRDF at the poses the reduction gives its samples (the read-back joints
+through the same geometry model: the rig file's, or the geometric calibration's) gives a
+table that differs from the measured one only by measurement error — the angular error of a
+misaligned rig included — which is what tests and the demo report (median relative error over
+measured bins).
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.reduction.point import binning_pose
+from acquisition.reduction.point import find_bundle
+from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE
 from acquisition.session.folder import SessionFolder
 from acquisition.simworld.materials import parse_material
@@ -19,24 +22,27 @@ from acquisition.tables import IsotropicTable
 from simulators.materials import Material
 
 
-def truth_table(session_dir: str | Path | SessionFolder, material: Material | None = None
-                ) -> IsotropicTable:
+def truth_table(session_dir: str | Path | SessionFolder, material: Material | None = None,
+                *, bundle: str | Path | None = None, geometry: bool = True) -> IsotropicTable:
     """The session's material evaluated at every captured pose, binned like the reduction
-    (``session_dir``: the folder, or its opened :class:`SessionFolder`)."""
+    (``session_dir``: the folder, or its opened :class:`SessionFolder`; ``bundle`` and
+    ``geometry`` as for :func:`~acquisition.reduction.point.reduce_session`: the poses are
+    those the reduction claims)."""
     folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
     if material is None:
         if not folder.info.material:
             raise ValueError(f"{folder.path} records no simulated material")
         material = parse_material(folder.info.material)
-    plan, kin = folder.plan(), folder.rig().kinematics()
+    plan = folder.plan()
+    geo = SampleGeometry.of(folder.rig(), find_bundle(folder, bundle), calibrated=geometry)
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance={"truth": material.spec})
     with folder.journal(readonly=True) as journal:
         for rec in journal.steps():
             if rec.status != "done" or rec.kind != POSE:
                 continue
-            g = kin.forward_geometry(rec.joints_read or rec.joints_cmd)
-            pose = binning_pose(rec)
+            g = geo.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
+            pose = geo.bin_pose(rec)
             value = material.eval_vectors(g.light_dir, g.camera_dir)
             table.add(np.array([pose.theta_i]), np.array([pose.theta_r]),
                       np.array([pose.delta_phi]), value[None, :])

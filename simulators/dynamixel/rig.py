@@ -34,6 +34,7 @@ from drivers.errors import ConfigError
 from simulators.clock import SimClock
 from simulators.dynamixel import control_table as ct
 from simulators.dynamixel.bus import SimServoBus, WireTime
+from simulators.dynamixel.drivetrain import Drivetrain, drivetrains_from_toml
 from simulators.dynamixel.faults import Fault, parse_faults
 from simulators.dynamixel.servo import SimServo
 from simulators.dynamixel.world import DEFAULT_TICK_S, Collision, SolidWorld
@@ -80,6 +81,9 @@ class SimRig:
         ``{bus name: SimServoBus}``.
     world:
         The solid world, or None.
+    drivetrains:
+        ``{axis: Drivetrain}``: where each arm really is given its shaft (the rig file's
+        ``[simulation.errors]``: zero offsets, backlash, position noise).
     """
 
     def __init__(
@@ -140,6 +144,10 @@ class SimRig:
                     servo.write(address, value.to_bytes(4, "little"))
                 self._servo_of[n] = servo
             self.buses[bus] = sim
+        self.drivetrains: dict[str, Drivetrain] = drivetrains_from_toml(
+            data, {n: sr.axes[n].deg for n in self._servo_of}, seed=seed, where=where)
+        for n, train in self.drivetrains.items():
+            self._servo_of[n].sim_attach_drivetrain(train.on_goal)
         self.world: SolidWorld | None = None
         arm_joints = [j for js in sr.arm_axes.values() for j in js]
         if solids and arm_joints:
@@ -148,7 +156,8 @@ class SimRig:
                 logger.warning("%s: axes %s are not on a served bus: no solid parts simulated",
                                where, absent)
             else:
-                self.world = SolidWorld(sr, self._servo_of, tick_s=physics_tick_s)
+                self.world = SolidWorld(sr, self._servo_of, tick_s=physics_tick_s,
+                                        arm_deg={n: t.arm_deg for n, t in self.drivetrains.items()})
                 for sim in self.buses.values():
                     sim.sim_attach_world(self.world)
 
@@ -200,9 +209,11 @@ class SimRig:
         return self._servo_of[axis]
 
     def sim_true_joints_deg(self) -> dict[str, float]:
-        """TRUE joint angles (deg) of every axis, from the shafts' positions."""
-        return {n: self.solid_rig.axes[n].deg(s.sim_true_position_ticks())
-                for n, s in self._servo_of.items()}
+        """TRUE joint angles (deg) of every arm: its shaft's position through its gears
+        (zero offset, backlash, position noise: :mod:`simulators.dynamixel.drivetrain`)."""
+        with self._lock:
+            return {n: self.drivetrains[n].arm_deg(s.sim_true_position_ticks())
+                    for n, s in self._servo_of.items()}
 
     def sim_collisions(self) -> list[Collision]:
         """Every contact of the arms so far (oldest first); empty without solids."""

@@ -123,6 +123,7 @@ class SimServo:
         self._obstruction: tuple[float | None, float | None] = (None, None)
         self._contact: tuple[float, int] | None = None  # (shaft ticks, blocked direction ±1)
         self._world: Callable[[float], None] | None = None
+        self._goal_hook: Callable[[float, float], None] | None = None
         self._motion_gen = 0  # bumped whenever the planned motion may change
         self._registered: tuple[int, bytes] | None = None
         self._overload_at: float | None = None
@@ -299,6 +300,11 @@ class SimServo:
         """Call ``advance(t)`` (the solid world's step to ``t``) before this servo advances."""
         self._world = advance
 
+    def sim_attach_drivetrain(self, on_goal: Callable[[float, float], None] | None) -> None:
+        """Call ``on_goal(present_ticks, goal_ticks)`` (Present Position frame) whenever a move
+        is planned (a :class:`~simulators.dynamixel.drivetrain.Drivetrain` follows the shaft)."""
+        self._goal_hook = on_goal
+
     def sim_step_to(self, t: float) -> None:
         """Advance this servo alone to simulated time ``t`` (the world's own stepping)."""
         with self._lock:
@@ -463,6 +469,9 @@ class SimServo:
 
     def _replan(self, target: float) -> None:
         self._motion_gen += 1
+        if self._goal_hook is not None:
+            offset = self._get("homing_offset")
+            self._goal_hook(self._pos + offset, target + offset)
         t = self._t
         lo, hi = self._bounds()
         if self._stall_since is not None:

@@ -121,10 +121,15 @@ class SolidWorld:
         one clock and one lock (one bus, or buses built with the same ``lock``).
     tick_s:
         Physics tick (simulated s), see the module docstring.
+    arm_deg:
+        ``{joint name: arm angle (deg) at a Present Position (ticks)}`` where the arms are not
+        where their servos' ticks say (a :class:`~simulators.dynamixel.drivetrain.Drivetrain`:
+        zero offsets, backlash, position noise); default the axis' own conversion.
     """
 
     def __init__(self, rig: SolidRig, servos: Mapping[str, SimServo], *,
-                 tick_s: float = DEFAULT_TICK_S) -> None:
+                 tick_s: float = DEFAULT_TICK_S,
+                 arm_deg: Mapping[str, Callable[[float], float]] | None = None) -> None:
         if not tick_s > 0:
             raise ValueError(f"tick_s must be > 0, got {tick_s}")
         self.rig = rig
@@ -135,6 +140,7 @@ class SolidWorld:
             raise ValueError(f"the solid world needs the servos of {missing}")
         self._servos = {j: servos[j] for j in arm_of}
         self._axes = {j: rig.axes[j] for j in arm_of}
+        self._arm_deg = {j: (arm_deg or {}).get(j, self._axes[j].deg) for j in arm_of}
         self._rad_per_tick = {j: 2.0 * math.pi / a.ticks_per_rev for j, a in self._axes.items()}
         self._reach = {j: rig.reach_m(arm) for j, arm in arm_of.items()}
         self.collisions: list[Collision] = []
@@ -166,7 +172,7 @@ class SolidWorld:
 
     # ------------------------------------------------------------------ geometry at a time
     def _joints(self, position: Callable[[SimServo], float]) -> dict[str, float]:
-        return {j: self._axes[j].deg(position(s)) for j, s in self._servos.items()}
+        return {j: self._arm_deg[j](position(s)) for j, s in self._servos.items()}
 
     def _gap_at(self, t: float) -> float:
         return self.rig.gap_m(self._joints(lambda s: s.sim_peek_ticks(t)))
@@ -244,12 +250,12 @@ class SolidWorld:
             if block is None or self._blocked_at.get(j) == self._t:
                 continue  # a block set now is not lifted now: the world always moves on
             at, d = block
-            axis = self._axes[j]
+            arm_deg = self._arm_deg[j]
             joints = self._joints(lambda x: x.sim_peek_ticks(self._t))
 
             def gap(ticks: float, joints: dict[str, float] = joints, j: str = j,
-                    axis=axis) -> float:
-                joints[j] = axis.deg(ticks)
+                    arm_deg=arm_deg) -> float:
+                joints[j] = arm_deg(ticks)
                 return self.rig.gap_m(joints)
 
             since = self._followed_at.get(j, self._t)
@@ -291,13 +297,13 @@ class SolidWorld:
         """The arms touch at ``t``: stall every servo whose own motion closes the gap; returns
         whether any servo was blocked."""
         ticks = {j: s.sim_peek_ticks(t) for j, s in self._servos.items()}
-        joints = {j: self._axes[j].deg(v) for j, v in ticks.items()}
+        joints = {j: self._arm_deg[j](v) for j, v in ticks.items()}
         contact = self.rig.contact(joints)
         moving = [j for j, s in self._servos.items() if s.sim_moving()]
         pushers = []
         for j in moving:
             probe = dict(joints)
-            probe[j] = self._axes[j].deg(self._servos[j].sim_peek_ticks(t + self.tick_s))
+            probe[j] = self._arm_deg[j](self._servos[j].sim_peek_ticks(t + self.tick_s))
             if self.rig.gap_m(probe) < contact.gap_m:
                 pushers.append(j)
         if not pushers:  # only their combined motion closes the gap

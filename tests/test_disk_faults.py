@@ -86,6 +86,8 @@ def _session_inputs(name: str) -> Callable[[dict[str, Path]], list[Path]]:
     return inputs
 
 
+MISALIGNED_RIG = EXAMPLES / "rig-misaligned-sim.toml"
+
 COMMANDS: dict[str, Command] = {
     "capture": Command(
         lambda r, e: ["capture", "--rig", str(RIG), "--plan", str(e["plan"]), "-o", str(r / "s"),
@@ -129,6 +131,13 @@ COMMANDS: dict[str, Command] = {
     "reduce-lightstage": Command(
         lambda r, e: ["reduce", str(e["lightstage"]), "-o", str(r / "l.h5")],
         lambda e: [e["lightstage"]], real=False),
+    "report": Command(
+        lambda r, e: ["report", str(e["table"]), "--models", "lambert", "-o",
+                      str(r / "report.html")],
+        lambda e: [e["table"]]),
+    "calibrate-geometry": Command(
+        lambda r, e: ["calibrate", "geometry", "--rig", str(MISALIGNED_RIG), "-o", str(r / "g")],
+        lambda e: [MISALIGNED_RIG], real=False),
     **{f"calibrate-{kind}": Command(
         lambda r, e, kind=kind: ["calibrate", kind, "--rig", str(RIG), "-o", str(r / "b")],
         lambda e: [RIG]) for kind in ("dark", "flat", "noise", "white")},

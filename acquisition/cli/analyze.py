@@ -7,6 +7,7 @@ import argparse
 import sys
 
 from acquisition import api
+from acquisition.cli import progress
 from acquisition.cli.options import add_json, add_out, report
 
 COMMANDS = {
@@ -111,7 +112,7 @@ def run_report(args: argparse.Namespace) -> int:
     result = api.report(args.source, args.out,
                         models=tuple(m.strip() for m in args.models.split(",") if m.strip()),
                         reference=args.reference, calibration=args.calibration,
-                        notice=lambda text: print(f"report: {text}…", file=sys.stderr))
+                        notice=lambda text: progress.status(f"report: {text}…"))
     for warning in result.warnings:
         print(f"gonio: warning: {warning}", file=sys.stderr)
     fits = ", ".join(f"{f.model.name} χ²/dof {f.chi2_dof:.3g}" for f in result.fits)

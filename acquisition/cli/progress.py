@@ -115,6 +115,14 @@ def say(line: str) -> None:
     tqdm.write(line, file=sys.stdout)
 
 
+def status(line: str) -> None:
+    """Tell the operator what a long step is doing, on stderr when it is a terminal only.
+
+    Pipes and logs keep stderr for warnings and the one error line."""
+    if sys.stderr.isatty():
+        print(line, file=sys.stderr)
+
+
 @contextmanager
 def step_bar(desc: str, unit: str = "step") -> Iterator[StepBar]:
     """A :class:`StepBar` on stderr (hidden when stderr is not a terminal)."""

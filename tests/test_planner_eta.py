@@ -29,7 +29,8 @@ poses = [[10, 30, 180], [30, 50, 120], [50, 20, 60], [20, 60, 150], [60, 40, 90]
 """
 
 
-@pytest.mark.parametrize("rig_name", ["rig-sim.toml", "rig-coaxial-sim.toml"])
+@pytest.mark.parametrize("rig_name", ["rig-sim.toml", "rig-coaxial-sim.toml",
+                                      "rig-misaligned-sim.toml"])  # with backlash: approach legs
 def test_estimate_within_5_percent_of_simulated_run(rig_name: str, tmp_path: Path) -> None:
     rig_path = EXAMPLES / rig_name  # the rig's own settings: stepped clock, time_scale 25
     plan_path = tmp_path / "tiny.toml"

@@ -244,7 +244,11 @@ class RigConfig:
     footprint: FootprintConfig | None = None
     light_stage: LightStageConfig | None = None
     bus_cycle_s: float = 0.03
-    """Per-move bus time (s): safety read, goal write, and the polls that confirm arrival."""
+    """Per-move bus time (s): health read, safety read, goal write, and the polls that confirm
+    arrival."""
+    health_read_s: float = 0.0
+    """The share of :attr:`bus_cycle_s` (s) spent on the health read, made once per move: a
+    routed or approached move's further legs cost :attr:`leg_bus_s` each."""
     sample: SampleConfig = field(default_factory=SampleConfig)
     home: HomeConfig | None = None
     """``[home]``: the declared home pose; None means the park pose."""
@@ -347,6 +351,7 @@ def load_rig(path: str | Path) -> RigConfig:
         light_stage=_parse_light_stage(top.section("light_stage", {})) if fixed else None,
         bus_cycle_s=timing.number("bus_cycle_s", move_bus_time_s(buses, axes),
                                   min=BUS_CYCLE_RANGE_S[0], max=BUS_CYCLE_RANGE_S[1], unit="s"),
+        health_read_s=health_read_s(buses, axes),
         sample=sample_cfg,
         home=home,
         sim_errors=errors,
@@ -634,6 +639,22 @@ def sync_read_s(n_servos: int, size: int, baud: int,
             n_servos * ((11 + size) * byte_s + return_delay_s))
 
 
+def _servo_counts(axes: Mapping[str, AxisConfig]) -> dict[str, int]:
+    """Servos per bus name."""
+    counts: dict[str, int] = {}
+    for a in axes.values():
+        counts[a.bus] = counts.get(a.bus, 0) + 1
+    return counts
+
+
+def health_read_s(buses: Mapping[str, BusConfig], axes: Mapping[str, AxisConfig],
+                  return_delay_s: float = RETURN_DELAY_S) -> float:
+    """Wire time (s) of the health guard's status read that starts every move (once per
+    move, not per leg)."""
+    return sum(sum(sync_read_s(n, _READ_BYTES["status"], buses[name].baud, return_delay_s))
+               for name, n in _servo_counts(axes).items())
+
+
 def move_bus_time_s(buses: Mapping[str, BusConfig], axes: Mapping[str, AxisConfig],
                     poll_s: float = MOTION_POLL_S,
                     return_delay_s: float = RETURN_DELAY_S) -> float:
@@ -645,9 +666,7 @@ def move_bus_time_s(buses: Mapping[str, BusConfig], axes: Mapping[str, AxisConfi
     samples the axes at rest: on average half a control cycle later, plus that poll's replies.
     With no servo bus, :data:`DEFAULT_BUS_CYCLE_S`.
     """
-    counts: dict[str, int] = {}
-    for a in axes.values():
-        counts[a.bus] = counts.get(a.bus, 0) + 1
+    counts = _servo_counts(axes)
     if not counts:
         return DEFAULT_BUS_CYCLE_S
     before = cycle = replies = 0.0

@@ -46,7 +46,7 @@ import numpy as np
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import DEFAULT_CLEARANCE_M, ArmConfig, ArmsConfig, FootprintConfig, RigConfig
 from acquisition.geometry.alignment import Alignment
-from acquisition.geometry.approach import approach_point
+from acquisition.geometry.approach import APPROACH_DEG, approach_point, approach_signs
 from acquisition.geometry.kinematics import Joints, Kinematics, Pose, poses_to_array
 from acquisition.geometry.kinematics.base import (
     angle_between_deg_array,
@@ -267,6 +267,7 @@ class Planner:
         costs = StepCosts(
             settle_s=rig.settle_s,
             bus_cycle_s=rig.bus_cycle_s,
+            leg_bus_s=max(rig.bus_cycle_s - rig.health_read_s, 0.0),
             exposure_s=rig.camera.exposure_s if exposure_s is None else exposure_s,
         )
         self.time_model = TimeModel(profiles, costs)
@@ -797,7 +798,7 @@ class Planner:
             return []
         joints = cfg[order, choice[order]]
         prev = np.vstack([start[None], joints[:-1]])
-        moves = self.array_time.move_s(prev, joints)
+        moves = self._step_moves_s(prev, joints)
         steps = []
         for n, (k, row, move) in enumerate(zip(order, joints, moves, strict=True)):
             ti, tr, dp = req[idx[k]]
@@ -806,6 +807,19 @@ class Planner:
             steps.append(PlannedPose(n, Pose(float(ti), float(tr), float(dp) + 0.0),
                                      self.kinematics.to_dict(row), float(move)))
         return steps
+
+    def _step_moves_s(self, prev: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Motion times (s) of the moves prev → joints (N, J) as the rig makes them: with
+        backlash, by the approach point :data:`APPROACH_DEG` short of the target (one more
+        leg and its bus cycle, as :meth:`leg_s` counts them); routed moves are re-timed later."""
+        direct = self.array_time.move_s(prev, joints)
+        if not self.approach or not self.kinematics.moving_arms:
+            return direct
+        lower = [self.kinematics.limits[n].min_deg for n in self.kinematics.joint_names]
+        pre = joints - approach_signs(joints, lower) * APPROACH_DEG
+        legs = self.array_time.move_s(prev, pre) + self.array_time.move_s(pre, joints)
+        moving = np.any(prev != joints, axis=-1)
+        return np.where(moving, legs + self.time_model.costs.leg_bus_s, direct)
 
     def _naive_motion_s(self, req: np.ndarray, cfg: np.ndarray, start: np.ndarray) -> float:
         """Motion time of the poses sorted by (θi, θr, Δφ), each taking the solution nearest
@@ -834,13 +848,13 @@ class Planner:
 
     def leg_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
         """Predicted time (s) of the move as the rig will make it: routed when the direct move
-        is unsafe, each extra leg adding one bus cycle (its confirming polls)."""
+        is unsafe, each extra leg adding its bus time (goal write and confirming polls)."""
         legs = self._legs(current, target)
         total, at = 0.0, dict(current)
         for leg in legs:
             total += self.time_model.move_s(at, leg)
             at = leg
-        return total + (len(legs) - 1) * self.time_model.costs.bus_cycle_s
+        return total + (len(legs) - 1) * self.time_model.costs.leg_bus_s
 
     def _legs(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
         try:

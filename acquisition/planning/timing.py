@@ -82,6 +82,8 @@ class StepCosts:
     settle_s: float = 0.05
     bus_cycle_s: float = 0.03
     """Bus time of one move: the commands, and the position polls that confirm arrival."""
+    leg_bus_s: float = 0.03
+    """Bus time of each further leg of a routed or approached move (no health read)."""
     exposure_s: float = 0.01
 
 

@@ -23,18 +23,15 @@ pair), times the scale².
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from calibration.raw import COLOURS, RawFrame
+from calibration.linearize_kernel import absent, linearize_cells
+from calibration.raw import RawFrame
 from drivers.errors import CalibrationError
-
-_CHUNK_ROWS = 32  # superpixel rows per block: keeps the working set in cache
 
 
 @dataclass(frozen=True)
@@ -73,11 +70,13 @@ class LinearImage:
     Attributes
     ----------
     rgb:
-        (H/2)×(W/2)×3 float64 in ``units``; NaN where not ``valid``.
+        (H/2)×(W/2)×3 float32 in ``units`` (computed in float64; float32's 7 digits lie far
+        below any frame's noise and halve the memory traffic); NaN where not ``valid``.
     valid:
         (H/2)×(W/2) bool: no saturated or bad pixel in the cell.
     variance:
-        Variance of ``rgb`` (units²), same shape, when a noise model was given; else None.
+        Variance of ``rgb`` (units², float32), same shape, when a noise model was given; else
+        None.
     units:
         ``"DN/s"``, optionally ``"at ISO 100"`` and ``"· f²"`` (see module docstring).
     scale:
@@ -97,32 +96,6 @@ class LinearImage:
     iso: float | None
     f_number: float | None
     path: Path | None = None
-
-
-def _threads() -> int:
-    """Worker threads for the row blocks: up to 4, one per core."""
-    return max(1, min(4, os.cpu_count() or 1))
-
-
-@dataclass(frozen=True, eq=False)
-class _Job:
-    """Everything one block of superpixel rows needs: inputs, checked options, outputs."""
-
-    mosaic: np.ndarray
-    width_sp: int
-    black_dn: np.ndarray
-    threshold_dn: np.ndarray
-    positions: dict[str, list[tuple[int, int]]]
-    dark: np.ndarray | None
-    flat: np.ndarray | None
-    flat_per_pixel: bool
-    bad_pixels: np.ndarray | None
-    bad_per_pixel: bool
-    noise_arrays: tuple[np.ndarray, np.ndarray] | None
-    scale: float
-    rgb: np.ndarray
-    valid: np.ndarray
-    variance: np.ndarray | None
 
 
 def linearize(
@@ -168,12 +141,11 @@ def linearize(
     if not 0 < saturation <= 1:
         raise CalibrationError(f"saturation fraction must be in (0, 1], got {saturation}")
     scale, units = _scale_and_units(frame, t, normalize_iso, normalize_f_number)
-    job = _new_job(frame, dark, flat, bad_pixels, noise, saturation, scale)
-    _run_blocks(job)
+    rgb, valid, variance = _run_kernel(frame, dark, flat, bad_pixels, noise, saturation, scale)
     return LinearImage(
-        rgb=job.rgb,
-        valid=job.valid,
-        variance=job.variance,
+        rgb=rgb,
+        valid=valid,
+        variance=variance,
         units=units,
         scale=scale,
         exposure_s=float(t),
@@ -262,7 +234,7 @@ def _noise_arrays(
     return noise.per_colour()
 
 
-def _new_job(
+def _run_kernel(
     frame: RawFrame,
     dark: np.ndarray | None,
     flat: np.ndarray | None,
@@ -270,157 +242,34 @@ def _new_job(
     noise: NoiseModel | None,
     saturation: float,
     scale: float,
-) -> _Job:
-    """Check the calibration data (shapes, then the noise model's ISO), derive per-position
-    levels, allocate the outputs."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Check the calibration data (shapes, then the noise model's ISO), then run the compiled
+    pass (:func:`calibration.linearize_kernel.linearize_cells`): rgb, valid, variance."""
     mosaic = frame.mosaic
     hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
     _check_dark(frame, dark)
     flat_per_pixel = _flat_is_per_pixel(frame, flat)
     bad_per_pixel = _bad_is_per_pixel(frame, bad_pixels)
     noise_arrays = _noise_arrays(frame, noise)
-    threshold_dn = (
-        frame.black_per_position
-        + saturation * (frame.white_per_position - frame.black_per_position)
-    ).astype(np.float32)
-    # CFA positions (row, col) of each colour, e.g. RGGB: R (0,0); G (0,1),(1,0); B (1,1).
-    positions = {c: [divmod(i, 2) for i, p in enumerate(frame.cfa_pattern) if p == c]
-                 for c in COLOURS}
-    return _Job(
-        mosaic=mosaic, width_sp=ww,
-        black_dn=frame.black_per_position.astype(np.float32), threshold_dn=threshold_dn,
-        positions=positions, dark=dark, flat=flat, flat_per_pixel=flat_per_pixel,
-        bad_pixels=bad_pixels, bad_per_pixel=bad_per_pixel, noise_arrays=noise_arrays,
-        scale=scale,
-        rgb=np.empty((hh, ww, 3)),
-        valid=np.empty((hh, ww), dtype=bool),
-        variance=np.empty((hh, ww, 3)) if noise_arrays is not None else None,
-    )
-
-
-def _run_blocks(job: _Job) -> None:
-    """Fill the job's outputs block by block of :data:`_CHUNK_ROWS` rows, threaded if large."""
-    hh = job.rgb.shape[0]
-    starts = range(0, hh, _CHUNK_ROWS)
-    threads = _threads()
-    if threads > 1 and hh > 2 * _CHUNK_ROWS:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lambda a: _block(job, a, min(a + _CHUNK_ROWS, hh)), starts))
-    else:
-        for a in starts:
-            _block(job, a, min(a + _CHUNK_ROWS, hh))
-
-
-def _plane(arr: np.ndarray, pos: tuple[int, int], a: int, b: int, width_sp: int) -> np.ndarray:
-    """The pixels at CFA position ``pos`` of superpixel rows ``a … b − 1``."""
-    i, j = pos
-    return arr[2 * a + i : 2 * b : 2, j : 2 * width_sp : 2]
-
-
-def _block(job: _Job, a: int, b: int) -> None:
-    """Linearize superpixel rows ``a … b − 1`` into the job's outputs."""
-    with np.errstate(divide="ignore", invalid="ignore"):  # zero flats are masked below
-        bad = _clipped_or_bad(job, a, b)
-        for k, colour in enumerate(COLOURS):
-            acc, var_acc = _colour_sum(job, k, colour, a, b, bad)
-            _write_colour(job, k, len(job.positions[colour]), acc, var_acc, a, b, bad)
-        _mask(job, a, b, bad)
-
-
-def _clipped_or_bad(job: _Job, a: int, b: int) -> np.ndarray:
-    """Superpixels of rows ``a … b − 1`` with a saturated pixel or on the bad-pixel map."""
-    ww = job.width_sp
-    bad = np.zeros((b - a, ww), dtype=bool)
-    for i in range(2):
-        for j in range(2):
-            bad |= _plane(job.mosaic, (i, j), a, b, ww) >= job.threshold_dn[i, j]
-    if job.bad_pixels is not None:
-        if job.bad_per_pixel:
-            for i in range(2):
-                for j in range(2):
-                    bad |= _plane(job.bad_pixels, (i, j), a, b, ww)
-        else:
-            bad |= job.bad_pixels[a:b]
-    return bad
-
-
-def _colour_sum(
-    job: _Job, k: int, colour: str, a: int, b: int, bad: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Sum over the colour's CFA positions of the corrected signal (DN) and its variance (DN²);
-    marks zero per-pixel flats in ``bad``."""
-    acc: np.ndarray | None = None
-    var_acc: np.ndarray | None = None
-    for pos in job.positions[colour]:
-        signal, var = _position_signal(job, k, pos, a, b, bad)
-        if acc is None:
-            acc, var_acc = signal, var
-        else:
-            acc += signal
-            if var_acc is not None:
-                var_acc += var
-    return acc, var_acc  # type: ignore[return-value]  # every colour has a CFA position
-
-
-def _position_signal(
-    job: _Job, k: int, pos: tuple[int, int], a: int, b: int, bad: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """One CFA position's dark- or black-subtracted, per-pixel flat-fielded signal (DN,
-    float32) and its variance (DN², None without a noise model)."""
-    ww = job.width_sp
-    raw = _plane(job.mosaic, pos, a, b, ww)
-    if job.dark is None or job.noise_arrays is not None:
-        signal = np.subtract(raw, job.black_dn[pos], dtype=np.float32)
-    var = None
-    if job.noise_arrays is not None:
-        var = _pixel_variance_dn2(signal, job.noise_arrays, k)
-    if job.dark is not None:
-        signal = np.subtract(raw, _plane(job.dark, pos, a, b, ww), dtype=np.float32)
-    if job.flat_per_pixel:
-        f = _plane(job.flat, pos, a, b, ww)
-        signal /= f
-        bad |= ~(f > 0)
-        if var is not None:
-            var /= np.square(f, dtype=np.float32)
-    return signal, var
-
-
-def _pixel_variance_dn2(
-    signal_dn: np.ndarray, noise_arrays: tuple[np.ndarray, np.ndarray], k: int
-) -> np.ndarray:
-    """Shot plus read noise (DN², float32) of black-subtracted signals of colour ``k``."""
-    gain, read = noise_arrays
-    var = np.maximum(signal_dn, 0, dtype=np.float32)
-    var *= np.float32(1.0 / gain[k])
-    var += np.float32(read[k] ** 2)
-    return var
-
-
-def _write_colour(
-    job: _Job, k: int, n: int, acc: np.ndarray, var_acc: np.ndarray | None,
-    a: int, b: int, bad: np.ndarray,
-) -> None:
-    """Scale the mean of ``n`` positions into the outputs' colour ``k``, then apply a
-    superpixel flat (marking zero flats in ``bad``)."""
-    out = job.rgb[a:b, :, k]
-    np.multiply(acc, job.scale / n, out=out)
-    if job.variance is not None:
-        np.multiply(var_acc, (job.scale / n) ** 2, out=job.variance[a:b, :, k])
-    if job.flat is not None and not job.flat_per_pixel:
-        f = job.flat[a:b, :, k]
-        out /= f
-        bad |= ~(f > 0)
-        if job.variance is not None:
-            job.variance[a:b, :, k] /= np.square(f)
-
-
-def _mask(job: _Job, a: int, b: int, bad: np.ndarray) -> None:
-    """Record validity of rows ``a … b − 1`` and set their bad superpixels to NaN."""
-    np.logical_not(bad, out=job.valid[a:b])
-    if bad.any():
-        job.rgb[a:b][bad] = np.nan
-        if job.variance is not None:
-            job.variance[a:b][bad] = np.nan
+    black = frame.black_per_position.astype(np.float32)
+    threshold = (frame.black_per_position
+                 + saturation * (frame.white_per_position - frame.black_per_position)
+                 ).astype(np.float32)
+    red_at = divmod(frame.cfa_pattern.index("R"), 2)  # a Bayer layout (the loader checks)
+    gain, read = noise_arrays if noise_arrays is not None else (absent(1, np.float64),) * 2
+    rgb = np.empty((hh, ww, 3), np.float32)
+    valid = np.empty((hh, ww), dtype=bool)
+    variance = np.empty((hh, ww, 3), np.float32) if noise_arrays is not None else absent(3)
+    linearize_cells(
+        mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64),
+        dark if dark is not None else absent(2),
+        flat if flat_per_pixel else absent(2),
+        flat if flat is not None and not flat_per_pixel else absent(3),
+        bad_pixels.astype(bool, copy=False) if bad_per_pixel else absent(2, bool),
+        bad_pixels.astype(bool, copy=False) if bad_pixels is not None and not bad_per_pixel
+        else absent(2, bool),
+        gain, read, float(scale), rgb, valid, variance)
+    return rgb, valid, (variance if noise_arrays is not None else None)
 
 
 @dataclass(frozen=True)

@@ -20,15 +20,16 @@ Non-Bayer files (stacked scanners, X-Trans, foveon, 4-colour CFAs) and corrupt f
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -37,6 +38,8 @@ from drivers.errors import RawFormatError
 if TYPE_CHECKING:
     import rawpy
     import tifffile
+
+T = TypeVar("T")
 
 COLOURS: tuple[str, str, str] = ("R", "G", "B")
 BLACK_TOLERANCE_DN = 2.0
@@ -270,7 +273,7 @@ def _margin_regions(
 
 @dataclass(frozen=True, eq=False)
 class _Decoded:
-    """What :func:`_decode` copies out of LibRaw before closing the file."""
+    """What :func:`_decode` reads of an open file (``mosaic``: a view of LibRaw's buffer)."""
 
     pattern: str
     indices: np.ndarray
@@ -288,7 +291,8 @@ class _Decoded:
 
 
 def load_raw(path: str | os.PathLike[str]) -> RawFrame:
-    """Read a Bayer RAW file: visible mosaic, CFA pattern, levels and capture metadata.
+    """Read a Bayer RAW file: visible mosaic (copied out as float32 DN), CFA pattern, levels
+    and capture metadata.
 
     Raises
     ------
@@ -300,18 +304,49 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
     BlackLevelWarning
         The optical-black pixels differ from the stated black level by more than 2 DN.
     """
+    return read_raw(path, _copied, stacklevel=3)
+
+
+def _copied(frame: RawFrame) -> RawFrame:
+    """The frame with its mosaic copied out of LibRaw's buffer, as float32 DN."""
+    return dataclasses.replace(frame, mosaic=np.array(frame.mosaic, dtype=np.float32))
+
+
+def read_raw(path: str | os.PathLike[str], use: Callable[[RawFrame], T], *,
+             stacklevel: int = 2) -> T:
+    """Decode a Bayer RAW file and return ``use(frame)``, called while LibRaw holds the file:
+    ``frame.mosaic`` is LibRaw's own visible buffer (uint16 DN, read-only), valid only during
+    the call, so a consumer such as :func:`calibration.linearize.linearize` reads it once with
+    no copy. Errors and warnings as :func:`load_raw` (``stacklevel`` as in
+    :func:`warnings.warn`, seen from here: 2 blames the caller)."""
+    import rawpy
+
     path = Path(path)
     if not path.is_file():
         raise _fail(path, "no such RAW file; check the path")
     dng = _dng_tags(path)
-    d = _decode(path, dng)
+    meta = _capture_metadata(path)
+    try:
+        with rawpy.imread(str(path)) as raw:
+            d = _decode(raw, path, dng)
+            frame = _frame(path, d, dng, meta, stacklevel + 2)
+            return use(frame)
+    except rawpy.LibRawError as exc:
+        raise _decode_failure(path, exc) from None
+    except MemoryError:
+        raise _fail(path, "RAW file too large to load into memory") from None
+
+
+def _frame(path: Path, d: _Decoded, dng: dict[int, np.ndarray] | None, meta: dict[str, Any],
+           stacklevel: int) -> RawFrame:
+    """The :class:`RawFrame` of a decoded file, its levels checked."""
     black = _black_per_position(d, dng)
     white = _white_per_position(d)
     if np.any(white <= black):
         raise _fail(path, f"white level {white.min():g} DN is not above black level "
                           f"{black.max():g} DN; the file's metadata are inconsistent")
-    optical = _checked_optical_black(path, d, black, white)
-    meta = _capture_metadata(path)
+    optical = _checked_optical_black(path, d, black, white, stacklevel)
+    meta = dict(meta)
     _fill_from_libraw(meta, d.other)
     return RawFrame(
         path=path,
@@ -331,36 +366,23 @@ def load_raw(path: str | os.PathLike[str]) -> RawFrame:
     )
 
 
-def _decode(path: Path, dng: dict[int, np.ndarray] | None) -> _Decoded:
-    """Open the file with LibRaw and copy out the mosaic, levels and optical-black means."""
-    import rawpy
-
-    try:
-        with rawpy.imread(str(path)) as raw:
-            pattern, indices = _bayer_layout(raw, path)
-            sizes = raw.sizes
-            origin = (int(sizes.top_margin), int(sizes.left_margin))
-            raw_shape = (int(sizes.raw_height), int(sizes.raw_width))
-            # Copy out of LibRaw's buffer while the handle is open (views die with it).
-            mosaic = np.array(raw.raw_image_visible, dtype=np.float32)
-            size = (int(mosaic.shape[0]), int(mosaic.shape[1]))
-            black_by_index = list(raw.black_level_per_channel)
-            white_by_index = raw.camera_white_level_per_channel
-            white_scalar = float(raw.white_level)
-            wb = [float(v) for v in raw.camera_whitebalance]
-            other = raw.other
-            ob_regions, ob_gate = _optical_black_regions(dng, raw_shape, origin, size)
-            optical = (
-                optical_black_means(raw.raw_image, ob_regions, pattern, origin)
-                if ob_regions
-                else None
-            )
-    except rawpy.LibRawError as exc:
-        raise _decode_failure(path, exc) from None
-    except MemoryError:
-        raise _fail(path, "RAW file too large to load into memory") from None
-    return _Decoded(pattern, indices, origin, raw_shape, mosaic, black_by_index, white_by_index,
-                    white_scalar, wb, other, optical, ob_gate)
+def _decode(raw: rawpy.RawPy, path: Path, dng: dict[int, np.ndarray] | None) -> _Decoded:
+    """The layout, levels and optical-black means of an open file, and a view of its visible
+    mosaic (LibRaw's buffer: valid while the file is open)."""
+    pattern, indices = _bayer_layout(raw, path)
+    sizes = raw.sizes
+    origin = (int(sizes.top_margin), int(sizes.left_margin))
+    raw_shape = (int(sizes.raw_height), int(sizes.raw_width))
+    mosaic = raw.raw_image_visible
+    mosaic.setflags(write=False)
+    size = (int(mosaic.shape[0]), int(mosaic.shape[1]))
+    ob_regions, ob_gate = _optical_black_regions(dng, raw_shape, origin, size)
+    optical = (optical_black_means(raw.raw_image, ob_regions, pattern, origin)
+               if ob_regions else None)
+    return _Decoded(pattern, indices, origin, raw_shape, mosaic,
+                    list(raw.black_level_per_channel), raw.camera_white_level_per_channel,
+                    float(raw.white_level), [float(v) for v in raw.camera_whitebalance],
+                    raw.other, optical, ob_gate)
 
 
 def _decode_failure(path: Path, exc: Exception) -> RawFormatError:
@@ -406,7 +428,7 @@ def _white_per_position(d: _Decoded) -> np.ndarray:
 
 
 def _checked_optical_black(
-    path: Path, d: _Decoded, black: np.ndarray, white: np.ndarray
+    path: Path, d: _Decoded, black: np.ndarray, white: np.ndarray, stacklevel: int
 ) -> dict[str, float] | None:
     """The optical-black means, dropped if a gated margin is lit; warns
     (:class:`BlackLevelWarning`, attributed to :func:`load_raw`'s caller) if they disagree
@@ -427,7 +449,7 @@ def _checked_optical_black(
                 + ", ".join(f"{c} {black_colour[c]:.1f}" for c in COLOURS)
                 + f" DN (> {BLACK_TOLERANCE_DN:g} DN apart); subtract a master dark frame",
                 BlackLevelWarning,
-                stacklevel=3,  # load_raw's caller
+                stacklevel=stacklevel,  # the caller of load_raw or read_raw
             )
     return optical
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import ConfigError
+from simulators.exposure import expose_mosaic, frame_key
 
 CFA_PATTERN = "RGGB"
 """Colour layout of every simulated sensor (top-left 2×2, row by row)."""
@@ -195,7 +196,7 @@ class SensorModel:
 
     @cached_property
     def response(self) -> np.ndarray:
-        """Fixed electrons per (radiance · s) of each pixel (H×W float64): k · q_c · PRNU · V."""
+        """Fixed electrons per (radiance · s) of each pixel (H×W float32): k · q_c · PRNU · V."""
         rng = np.random.Generator(
             np.random.PCG64(np.random.SeedSequence(self.seed, spawn_key=(_PRNU_STREAM,)))
         )
@@ -212,11 +213,13 @@ class SensorModel:
         resp[1::2, 0::2] *= qg
         resp[1::2, 1::2] *= qb
         resp *= self.electrons_per_radiance_s
+        resp = resp.astype(np.float32)
         resp.setflags(write=False)
         return resp
 
-    def mosaic_radiance(self, radiance_rgb: np.ndarray) -> np.ndarray:
-        """Expand per-superpixel radiance (H/2×W/2×3) to the RGGB mosaic (H×W float64)."""
+    def _checked_radiance(self, radiance_rgb: np.ndarray) -> np.ndarray:
+        """Per-superpixel radiance as an (H/2, W/2, 3) float64 array (a view where possible);
+        refuses another grid, negative or non-finite values."""
         h, w = self.superpixel_shape
         rad = np.asarray(radiance_rgb, dtype=np.float64)
         try:
@@ -228,6 +231,11 @@ class SensorModel:
             ) from None
         if not np.isfinite(rad).all() or (rad < 0).any():
             raise ValueError("radiance_rgb must be finite and ≥ 0 W·sr⁻¹·m⁻²")
+        return rad
+
+    def mosaic_radiance(self, radiance_rgb: np.ndarray) -> np.ndarray:
+        """Expand per-superpixel radiance (H/2×W/2×3) to the RGGB mosaic (H×W float64)."""
+        rad = self._checked_radiance(radiance_rgb)
         out = np.empty((self.height, self.width))
         out[0::2, 0::2] = rad[..., 0]
         out[0::2, 1::2] = rad[..., 1]
@@ -269,24 +277,12 @@ class SensorModel:
             raise ValueError(f"exposure_s must be a finite time > 0 s, got {exposure_s}")
         if not (math.isfinite(iso) and iso > 0):
             raise ValueError(f"iso must be > 0, got {iso}")
-        lam = self.expected_electrons(radiance_rgb, exposure_s)
-        if self.optical_black_px:
-            active = lam
-            lam = np.full(self.raw_shape, self.dark_current_e_per_s * exposure_s)
-            top, left, bottom, right = self.active_area
-            lam[top:bottom, left:right] = active
-        # Anything beyond the full well clips anyway; bounding λ keeps Poisson sampling finite.
-        np.minimum(lam, 4.0 * self.full_well_e + 1e3, out=lam)
-        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, frame_seed])))
-        electrons = rng.poisson(lam).astype(np.float32)
-        np.minimum(electrons, np.float32(self.full_well_e), out=electrons)
+        radiance = self._checked_radiance(radiance_rgb)
+        out = np.empty(self.raw_shape, dtype=np.uint16)
+        top, left, _, _ = self.active_area
         gain = self.gain_at(iso)
-        sigma_dn = math.hypot(self.read_noise_e / gain, self.black_noise_dn)
-        dn = rng.standard_normal(electrons.shape, dtype=np.float32)
-        dn *= np.float32(sigma_dn)
-        electrons *= np.float32(1.0 / gain)
-        dn += electrons
-        dn += np.float32(self.black_level_dn)
-        np.rint(dn, out=dn)
-        np.clip(dn, 0, self.adc_max, out=dn)
-        return dn.astype(np.uint16)
+        expose_mosaic(radiance, self.response, frame_key(self.seed, frame_seed),
+                      (top, left), self.dark_current_e_per_s, exposure_s, self.full_well_e, gain,
+                      math.hypot(self.read_noise_e / gain, self.black_noise_dn),
+                      float(self.black_level_dn), self.adc_max, out)
+        return out

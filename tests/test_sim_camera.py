@@ -234,8 +234,9 @@ def test_optical_black_border_reaches_the_loader(tmp_path):
     # Masked pixels still collect dark current: a long, warm exposure lifts them above the
     # stated black level and the loader says so.
     warm = SimCamera(_sensor(optical_black_px=8, dark_current_e_per_s=100.0), _Scene(None))
-    with pytest.warns(BlackLevelWarning):
+    with pytest.warns(BlackLevelWarning) as record:
         load_raw(warm.capture(tmp_path / "b.dng", 2.0).path)
+    assert record[0].filename == __file__  # the warning names the line that loaded the file
 
 
 def test_optical_black_border_must_be_even():

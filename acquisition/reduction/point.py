@@ -78,7 +78,7 @@ from acquisition.tables import IsotropicTable
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage, NoiseModel, linearize, roi_mean
-from calibration.raw import load_raw
+from calibration.raw import RawFrame, read_raw
 from calibration.signal import roi_signal
 from drivers.errors import SessionError
 
@@ -183,7 +183,12 @@ def linearize_with_variance(path: Path, rig: RigConfig,
                             bundle: CalibrationBundle | None = None) -> LinearImage:
     """Linearize a frame with the bundle's corrections and a variance per superpixel from
     :func:`noise_model` (no variance where none is known: a real camera, no measured model)."""
-    frame = load_raw(path)
+    return read_raw(path, lambda frame: _linearized(frame, rig, bundle))
+
+
+def _linearized(frame: RawFrame, rig: RigConfig, bundle: CalibrationBundle | None
+                ) -> LinearImage:
+    """:func:`linearize_with_variance` of a frame still held by LibRaw (one pass, no copy)."""
     iso = float(frame.iso or rig.camera.iso)
     if bundle is not None and bundle.noise_for(iso) is not None:
         return bundle.linearize(frame)

@@ -11,8 +11,10 @@ out_of_plane` and :mod:`acquisition.calibrate.coaxial` choose each kind's config
    captures use), so the backlash of every axis is measured and the zero offsets are those of
    the centre of the play.
 2. Mirror peaks cannot separate every combination (out-of-plane: ``light_theta −
-   2·tilt_about_y``; coaxial: the difference of the two arm azimuths' offsets): the white
-   target's cos θi fall-off across the light arm is the absolute reference that does.
+   2·tilt_about_y``; coaxial: the difference of the two arm azimuths' offsets, and at one
+   stage rotation the arms' common offset and the stage tilt's offset from the sample tilt,
+   which the coaxial procedure separates by turning the stage): the white target's cos θi
+   fall-off across the light arm is the absolute reference that separates the rest.
 3. One weighted least-squares fit (:func:`calibration.lsq.solve`) of every zero offset, the
    tilt, the backlash and the white amplitude gives their 1σ, the residual, the rank and the
    condition number of the problem, and names any combination still unobservable (and what

@@ -21,7 +21,7 @@ across the light arm (the light at ± :data:`WHITE_ANGLES_DEG` about the normal,
 normal. The arms turn in one plane and cannot pass each other: every configuration keeps them
 in the order they stand in when the procedure starts.
 
-Left to convention, and named as such (:func:`unmeasured`): the stage rotation's zero. It only
+Left to convention, and named as such (``not_measured``): the stage rotation's zero. It only
 turns the sample's tilt about the normal, which no measurement of an isotropic sample sees, so
 the tilt is stated in the frame of the commanded rotation (its backlash turns a 0.5° tilt by
 < 0.001°). A rig without a stage rotation cannot separate the pairs above: the fit names them.
@@ -62,8 +62,10 @@ def _rotations(rig: RigConfig) -> tuple[float | None, ...]:
 
 
 def expected_frames(rig: RigConfig) -> int:
+    """Frames of a usual run: the second approach's fine scans start a backlash off the peak
+    and are repeated once about it."""
     coarse, fine = scan_points(*COARSE), scan_points(*FINE)
-    return len(_rotations(rig)) * (2 * (coarse + fine) + 2 * fine) + 4 * len(WHITE_ANGLES_DEG)
+    return len(_rotations(rig)) * (2 * (coarse + fine) + 4 * fine) + 4 * len(WHITE_ANGLES_DEG)
 
 
 def _approach(s: int, psi: float | None) -> dict[str, int]:
@@ -122,13 +124,5 @@ def white_falloff(scope: Scope, rig: RigConfig) -> list[mm.WhiteObservation]:
     return out
 
 
-def unmeasured(rig: RigConfig) -> list[str]:
-    """What stays a convention (module docstring)."""
-    if ROTATION not in rig.axes:
-        return []
-    return [f"{ROTATION} zero offset (turns only the sample tilt about the normal: the tilt is "
-            "stated in the frame of the commanded rotation)"]
-
-
-PROCEDURE = Procedure("mirror peaks at several stage rotations + white fall-off", mirror_peaks,
-                      white_falloff, expected_frames, unmeasured)
+PROCEDURE = Procedure("mirror peaks of the stage tilt and the camera azimuth at each stage "
+                      "rotation + white fall-off", mirror_peaks, white_falloff, expected_frames)

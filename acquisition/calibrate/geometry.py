@@ -18,7 +18,8 @@ out_of_plane` and :mod:`acquisition.calibrate.coaxial` choose each kind's config
 3. One weighted least-squares fit (:func:`calibration.lsq.solve`) of every zero offset, the
    tilt, the backlash and the white amplitude gives their 1σ, the residual, the rank and the
    condition number of the problem, and names any combination still unobservable (and what
-   the procedure leaves to convention: a coaxial rig's stage-rotation zero).
+   it leaves to convention: the zero of a free joint — a stage rotation, a turntable — which
+   only turns the tilt about the normal).
 4. The result goes into the calibration bundle's ``geometry`` section, with its provenance.
 
 Other kinematics (a light stage: nothing moves) are refused in one line.
@@ -133,7 +134,9 @@ def calibrate_geometry(rig_path: str | Path, bundle_path: str | Path, *, seed: i
     fit = solve(lambda x: model.residuals(x, peaks, whites), model.start(whites), model.names,
                 model.scales)
     run = _result(bundle.path, scope.count, model, fit, peaks, pointing)
-    run.not_measured = procedure.unmeasured(rig)
+    run.not_measured = [f"{n} zero offset (turns only the sample tilt about the normal: the "
+                        "tilt is stated in the frame of the commanded angle)"
+                        for n in model.kinematics.free_joints]
     bundle.set_geometry({**run.alignment.to_dict(), "fit": _finite(run.to_json())},
                         provenance(rig=str(rig.path), rig_name=rig.name, seed=seed,
                                    procedure=procedure.description

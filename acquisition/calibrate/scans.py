@@ -194,5 +194,3 @@ class Procedure:
     mirror_peaks: Callable[[Scope, RigConfig], list[PeakObservation]]
     white_falloff: Callable[[Scope, RigConfig], list[WhiteObservation]]
     expected_frames: Callable[[RigConfig], int]
-    unmeasured: Callable[[RigConfig], list[str]] = lambda rig: []
-    """What the procedure leaves to convention, one phrase each (named, never guessed)."""

@@ -87,17 +87,16 @@ def solve(residual: Callable[[np.ndarray], np.ndarray], x0: Sequence[float],
             break
     r = residual(x)
     jac = _jacobian(residual, x, r, sc) * sc
-    u, s, vt = np.linalg.svd(jac, full_matrices=False)
-    keep = s > RANK_TOL * s[0]
-    dof = max(r.size - int(keep.sum()), 1)
+    _, s, vt = np.linalg.svd(jac)  # full vt: with fewer data than parameters the null space
+    rank = int(np.sum(s > RANK_TOL * s[0]))  # has more directions than s has values
+    dof = max(r.size - rank, 1)
     chi2 = float(r @ r) / dof
-    inv = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    inv = (vt[:rank].T / s[:rank] ** 2) @ vt[:rank]
     cov = inv * np.outer(sc, sc) * max(chi2, 1.0)
-    null = vt[~keep]
+    null = vt[rank:]
     lost = (np.any(np.abs(null) > NAME_TOL * np.abs(null).max(axis=1, keepdims=True), axis=0)
             if len(null) else np.zeros(len(x), bool))
     cov[lost, :] = np.inf
     cov[:, lost] = np.inf
-    return LsqResult(tuple(names), x, cov, chi2, dof, int(keep.sum()),
-                     float(s[0] / s[keep][-1]),
+    return LsqResult(tuple(names), x, cov, chi2, dof, rank, float(s[0] / s[rank - 1]),
                      tuple(_combination(v, names) for v in null), r)

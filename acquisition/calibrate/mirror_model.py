@@ -1,44 +1,48 @@
-"""The measurement model of the geometric calibration on an out-of-plane-arcs rig.
+"""The measurement model of the geometric calibration, for any rig with moving arms.
 
-Parameters (deg, but the white amplitude): the zero offsets of ``light_theta``,
-``camera_theta`` and ``camera_phi``; the sample tilt ``tilt_about_x``, ``tilt_about_y``
-(:mod:`acquisition.geometry.alignment`'s conventions); each axis' backlash (``backlash:AXIS``,
-the width of its play: an arm stops ``backlash / 2`` short of the centre of its play, behind
-the direction it came from); and ``white:log_amplitude`` (ln of the white target's signal at
-normal incidence).
+Parameters (deg, but the white amplitude), in :attr:`MirrorModel.names` order: the zero offset
+of every essential joint of the rig's kinematics (out-of-plane arcs: ``light_theta``,
+``camera_theta``, ``camera_phi``; coaxial arms: ``light_azimuth``, ``camera_azimuth``,
+``stage_tilt``); the sample tilt ``tilt_about_x``, ``tilt_about_y`` on its holder
+(:mod:`acquisition.geometry.alignment`'s conventions: the holder frame is the kinematics'
+nominal sample frame, which on a coaxial rig turns with the stage rotation); each of those
+axes' backlash (``backlash:AXIS``, the width of its play: an arm stops ``backlash / 2`` short
+of the centre of its play, behind the direction it came from); and ``white:log_amplitude``
+(ln of the white target's signal at normal incidence). A free joint (a turntable, a stage
+rotation) is taken as commanded: its zero is a convention (the tilt is stated in its frame).
 
-Observations:
+The true directions are the kinematics plug-in's (the same code
+:class:`~acquisition.geometry.kinematics.calibrated.CalibratedKinematics` applies the result
+through) at the true joints, turned into the true sample frame by the tilt. Observations:
 
-* a mirror peak (:class:`PeakObservation`): with the light and the other camera axis where
-  they stood, a scan of one camera axis peaked at ``joints[axis]`` (the commanded frame). A
-  mirror reflects towards the camera through the facets whose normal is the half vector
-  ``h = (l + c) / |l + c|``, and its facets cluster about the true normal n: the scan peaks
-  where ``h·n`` is largest along it (exactly the mirror direction of l when the scan can pass
-  through it; off the mirror plane, where a limit keeps the camera, the nearest point in facet
-  slope, not in direction);
+* a mirror peak (:class:`PeakObservation`): a scan of one axis, the others where they stood,
+  peaked at ``joints[axis]`` (the commanded frame). A mirror reflects towards the camera
+  through the facets whose normal is the half vector ``h = (l + c) / |l + c|``, and its facets
+  cluster about the true normal n: the scan peaks where ``h·n`` is largest along it (exactly
+  the mirror direction of l when the scan can pass through it; off the mirror plane, where a
+  limit keeps the camera, the nearest point in facet slope, not in direction);
 * the white target's signal (:class:`WhiteObservation`) ∝ cos θi of the true light about the
-  true normal: the absolute reference of the light arm (mirror peaks see only ``light_theta −
-  2·tilt_about_y`` of the two).
+  true normal: the absolute reference of the light arm, which mirror peaks see only together
+  with the tilt (out-of-plane: ``light_theta − 2·tilt_about_y``; coaxial: only the sum of the
+  two arm azimuths' offsets, against the normal's azimuth).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.geometry.alignment import TILT_PARAMS, tilt_matrix
+from acquisition.geometry.alignment import BACKLASH_PREFIX, TILT_PARAMS, tilt_matrix
+from acquisition.geometry.kinematics import Kinematics
 
-AXES = ("light_theta", "camera_theta", "camera_phi")
-"""The joints the model calibrates (out-of-plane arcs)."""
-BACKLASH = tuple(f"backlash:{a}" for a in AXES)
 AMPLITUDE = "white:log_amplitude"
-NAMES = (*AXES, *TILT_PARAMS, *BACKLASH, AMPLITUDE)
-SCALES = (1.0,) * (len(NAMES) - 1) + (0.01,)
+AMPLITUDE_SCALE = 0.01
+"""Typical size of the amplitude (1 % of signal); every other parameter's is 1°."""
 NEWTON_STEPS = 4
-"""Typical size of each parameter (deg; the amplitude's unit is 1 % of signal)."""
+STEP_DEG = 0.05
+"""Finite-difference step of the peak search along a scanned axis, deg."""
 
 
 @dataclass(frozen=True)
@@ -62,64 +66,96 @@ class WhiteObservation:
     sigma: float
 
 
-def _true(p: Mapping[str, float], joints: Mapping[str, float], approach: Mapping[str, int],
-          axis: str) -> float:
-    return joints[axis] + p[axis] - approach.get(axis, 0) * p[f"backlash:{axis}"] / 2.0
+class MirrorModel:
+    """The model of one rig's kinematics (see the module docstring)."""
 
+    def __init__(self, kinematics: Kinematics) -> None:
+        self.kinematics = kinematics
+        self.joint_names = kinematics.joint_names
+        self.axes = tuple(n for n in self.joint_names if n not in kinematics.free_joints)
+        self.backlash = tuple(f"{BACKLASH_PREFIX}{a}" for a in self.axes)
+        self.names = (*self.axes, *TILT_PARAMS, *self.backlash, AMPLITUDE)
+        self.scales = (1.0,) * (len(self.names) - 1) + (AMPLITUDE_SCALE,)
 
-def _directions(p: Mapping[str, float], joints: Mapping[str, float],
-                approach: Mapping[str, int]) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The true light (holder frame), the true normal, and the camera's true (θ, φ), rad."""
-    lt = math.radians(_true(p, joints, approach, "light_theta"))
-    light = np.array([math.sin(lt), 0.0, math.cos(lt)])
-    n = tilt_matrix(p["tilt_about_x"], p["tilt_about_y"])[:, 2]
-    return (light, n, math.radians(_true(p, joints, approach, "camera_theta")),
-            math.radians(_true(p, joints, approach, "camera_phi")))
+    def params(self, x: np.ndarray) -> dict[str, float]:
+        """Parameter vector (:attr:`names` order) → {name: value}."""
+        return dict(zip(self.names, np.asarray(x, float).tolist(), strict=True))
 
+    def _shift(self, p: Mapping[str, float], approach: Mapping[str, int]) -> np.ndarray:
+        """True − commanded angle of every joint (deg): offset − side × backlash / 2."""
+        return np.array([p[n] - approach.get(n, 0) * p[f"{BACKLASH_PREFIX}{n}"] / 2.0
+                         if n in self.axes else 0.0 for n in self.joint_names])
 
-def _facet(light: np.ndarray, n: np.ndarray, theta: float, phi: float) -> float:
-    """h·n for the camera at (θ, φ) (rad)."""
-    st = math.sin(theta)
-    h = light + np.array([st * math.cos(phi), st * math.sin(phi), math.cos(theta)])
-    return float(h @ n) / float(np.linalg.norm(h))
+    def _true_joints(self, p: Mapping[str, float], joints: Sequence[Mapping[str, float]],
+                     approach: Sequence[Mapping[str, int]]) -> np.ndarray:
+        cmd = np.array([[float(j.get(n, 0.0)) for n in self.joint_names] for j in joints])
+        return cmd + np.array([self._shift(p, a) for a in approach]).reshape(cmd.shape)
 
+    def _directions(self, p: Mapping[str, float], true: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Light and camera (N, 3) in the true sample frame at true joints (N, J)."""
+        light, camera = self.kinematics.forward_array(true)
+        rot = tilt_matrix(p[TILT_PARAMS[0]], p[TILT_PARAMS[1]])
+        return light @ rot, camera @ rot
 
-def predict_peak(p: Mapping[str, float], obs: PeakObservation) -> float:
-    """Where (commanded frame, deg) the scan of ``obs.axis`` peaks under parameters ``p``:
-    h·n's maximum along the scanned axis (Newton, from the observed peak)."""
-    light, n, theta, phi = _directions(p, obs.joints, obs.approach)
-    scan_phi = obs.axis == "camera_phi"
-    x = phi if scan_phi else theta
-    step = 1e-5
+    def _facet(self, p: Mapping[str, float], true: np.ndarray) -> np.ndarray:
+        """h·n at true joints (N, J)."""
+        light, camera = self._directions(p, true)
+        h = light + camera
+        return h[:, 2] / np.linalg.norm(h, axis=1)
 
-    def g(v: float) -> float:
-        return _facet(light, n, theta, v) if scan_phi else _facet(light, n, v, phi)
+    def predict_peaks(self, p: Mapping[str, float], peaks: Sequence[PeakObservation]
+                      ) -> np.ndarray:
+        """Where (commanded frame, deg) each scan peaks under parameters ``p``: h·n's maximum
+        along the scanned axis (Newton, from the observed peak)."""
+        if not peaks:
+            return np.zeros(0)
+        true = self._true_joints(p, [o.joints for o in peaks], [o.approach for o in peaks])
+        col = np.array([self.joint_names.index(o.axis) for o in peaks])
+        rows = np.arange(len(peaks))
+        x = true[rows, col].copy()
+        for _ in range(NEWTON_STEPS):
+            trial = np.repeat(true[None], 3, axis=0)
+            for k, d in enumerate((STEP_DEG, 0.0, -STEP_DEG)):
+                trial[k, rows, col] = x + d
+            up, mid, down = self._facet(p, trial.reshape(-1, true.shape[1])).reshape(3, -1)
+            curvature = (up - 2.0 * mid + down) / STEP_DEG**2
+            climbing = curvature < 0
+            x[climbing] -= ((up - down)[climbing] / (2.0 * STEP_DEG)) / curvature[climbing]
+        shift = np.array([self._shift(p, o.approach)[c] for o, c in zip(peaks, col, strict=True)])
+        return x - shift
 
-    for _ in range(NEWTON_STEPS):
-        up, mid, down = g(x + step), g(x), g(x - step)
-        curvature = (up - 2.0 * mid + down) / step**2
-        if curvature >= 0:
-            break
-        x -= (up - down) / (2.0 * step) / curvature
-    back = obs.approach.get(obs.axis, 0) * p[f"backlash:{obs.axis}"] / 2.0
-    return math.degrees(x) - p[obs.axis] + back
+    def predict_peak(self, p: Mapping[str, float], obs: PeakObservation) -> float:
+        """:meth:`predict_peaks` of one observation."""
+        return float(self.predict_peaks(p, [obs])[0])
 
+    def predict_log_whites(self, p: Mapping[str, float], whites: Sequence[WhiteObservation]
+                           ) -> np.ndarray:
+        """ln of the white target's signal under ``p``: amplitude × cos θi (true light, normal)."""
+        if not whites:
+            return np.zeros(0)
+        true = self._true_joints(p, [w.joints for w in whites], [w.approach for w in whites])
+        light, _ = self._directions(p, true)
+        return p[AMPLITUDE] + np.log(np.maximum(light[:, 2], 1e-12))
 
-def predict_log_white(p: Mapping[str, float], obs: WhiteObservation) -> float:
-    """ln of the white target's signal under ``p``: amplitude × cos θi (true light, normal)."""
-    light, n, _, _ = _directions(p, obs.joints, obs.approach)
-    return p[AMPLITUDE] + math.log(max(float(light @ n), 1e-12))
+    def residuals(self, x: np.ndarray, peaks: Sequence[PeakObservation],
+                  whites: Sequence[WhiteObservation]) -> np.ndarray:
+        """Normalised residuals (observed − predicted) / σ of every observation at parameters
+        ``x`` (in :attr:`names` order)."""
+        p = self.params(x)
+        observed = np.array([o.joints[o.axis] for o in peaks])
+        diff = observed - self.predict_peaks(p, peaks) if peaks else np.zeros(0)
+        peak_r = ((diff + 180.0) % 360.0 - 180.0) / np.array([o.sigma_deg for o in peaks])
+        white_r = (np.array([w.log_signal for w in whites]) - self.predict_log_whites(p, whites)
+                   ) / np.array([w.sigma for w in whites]) if whites else np.zeros(0)
+        return np.concatenate([peak_r, white_r])
 
-
-def residuals(x: np.ndarray, peaks: Sequence[PeakObservation],
-              whites: Sequence[WhiteObservation]) -> np.ndarray:
-    """Normalised residuals (observed − predicted) / σ of every observation at parameters
-    ``x`` (in :data:`NAMES` order)."""
-    p = dict(zip(NAMES, x.tolist(), strict=True))
-    out = []
-    for obs in peaks:
-        diff = obs.joints[obs.axis] - predict_peak(p, obs)
-        out.append(((diff + 180.0) % 360.0 - 180.0) / obs.sigma_deg)
-    for w in whites:
-        out.append((w.log_signal - predict_log_white(p, w)) / w.sigma)
-    return np.array(out)
+    def start(self, whites: Sequence[WhiteObservation]) -> np.ndarray:
+        """Starting parameters: every angle 0, the amplitude from the white frames."""
+        x = np.zeros(len(self.names))
+        if whites:
+            zero = self.params(x)
+            k = self.names.index(AMPLITUDE)
+            x[k] = float(np.mean([w.log_signal for w in whites])
+                         - np.mean(self.predict_log_whites(zero, whites)))
+        return x

@@ -1,5 +1,6 @@
 """``gonio calibrate dark|flat|noise|white|geometry --rig RIG --out BUNDLE``: make a calibration
-bundle (``geometry``: the rig's zero offsets and sample tilt, from a mirror and the white target)."""
+bundle (``geometry``: an out-of-plane-arcs or coaxial-arms rig's zero offsets and sample tilt,
+from a mirror and the white target)."""
 
 from __future__ import annotations
 
@@ -59,6 +60,7 @@ def run_geometry(args: argparse.Namespace) -> int:
                  f"χ²/dof {data['chi2_dof']:.3g}")
     lines += [f"  unobservable: {c} (not determined: the rig file's value is kept)"
               for c in data["unobservable"]]
+    lines += [f"  not measured: {c}" for c in data["not_measured"]]
     report(args, data, lines)
     return 0
 

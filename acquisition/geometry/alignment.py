@@ -7,8 +7,9 @@ its rig file's model, and the planner and the reduction apply it through
 * zero offset of an axis: the arm's true angle minus the angle the servo's ticks give through
   the rig file (``deg = direction × (ticks − zero_tick) × 360 / 4096``), degrees;
 * sample tilt ``(about_x, about_y)``: the sample's true axes are the holder's (the nominal
-  sample frame of the kinematics) turned about x by ``about_x``, then about the holder's y by
-  ``about_y``: the true normal is ``Ry(about_y) · Rx(about_x) · z ≈ (about_y, −about_x, 1)``;
+  sample frame of the kinematics; on a coaxial rig the stage's, which turns with the stage
+  rotation) turned about x by ``about_x``, then about the holder's y by ``about_y``: the true
+  normal is ``Ry(about_y) · Rx(about_x) · z ≈ (about_y, −about_x, 1)``;
 * backlash of an axis: the width of its gears' play (deg); an arm stops ``backlash / 2``
   short of the centre of its play, behind the side it came from. Captures approach every
   target from the side :func:`~acquisition.geometry.approach.approach_signs` gives, so the

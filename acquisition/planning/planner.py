@@ -1,13 +1,11 @@
 """The motion planner: which candidate poses are safe and useful, their order, and the ETA.
 
 Every pose is checked against the rig's constraints and kept or rejected with a named
-:class:`Reason`. :meth:`Planner.check_move` is the motion guard (the
-:class:`~drivers.dynamixel.motion.MotionGuard` the motion controller calls before *every* goal
-it sends, braking included): the target's limits and clearance (:meth:`Planner.check_joints`,
-which checks a target alone) and the move's whole swept path, also for every subset of the
-axes moving alone (a sync write one servo missed). :meth:`Planner.route` finds via points
-round the other arm when the direct move is refused. So nothing reaches a servo that the
-planner has not checked.
+:class:`~acquisition.planning.sweep.Reason`. The planner is also the motion guard
+(:mod:`acquisition.planning.guard`: ``check_move`` before *every* goal a servo receives,
+``route`` round the other arm) and times the moves a session adds
+(:mod:`acquisition.planning.session_moves`). So nothing reaches a servo that the planner has
+not checked.
 
 Constraints (in the order a rejection reports them):
 
@@ -33,20 +31,16 @@ the white-reference captures the session interleaves.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
-from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 
 from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import DEFAULT_CLEARANCE_M, ArmConfig, ArmsConfig, FootprintConfig, RigConfig
 from acquisition.geometry.alignment import Alignment
-from acquisition.geometry.approach import APPROACH_DEG, approach_point, approach_signs
+from acquisition.geometry.approach import APPROACH_DEG, approach_signs
 from acquisition.geometry.kinematics import Joints, Kinematics, Pose, poses_to_array
 from acquisition.geometry.kinematics.base import (
     angle_between_deg_array,
@@ -54,15 +48,12 @@ from acquisition.geometry.kinematics.base import (
     wrap_deg_array,
 )
 from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
-from acquisition.planning import ordering, refusals
-from acquisition.planning.paths import (
-    MEMO_SIZE,
-    MOVING_DEG,
-    PathChecker,
-    PathProblem,
-    Router,
-    route_or_raise,
-)
+from acquisition.planning import ordering
+from acquisition.planning.guard import MoveGuard
+from acquisition.planning.paths import PathChecker, Router
+from acquisition.planning.segments import segment_distance
+from acquisition.planning.session_moves import SessionMoves
+from acquisition.planning.sweep import SAFETY_REASONS, PlannedPose, Reason, Rejection, Sweep
 from acquisition.planning.timing import AxisProfile, StepCosts, TimeModel
 from drivers.errors import CollisionError, LimitError
 
@@ -74,119 +65,12 @@ HELD_KARP_AUTO_MAX = 1200
 """Largest sweep for which ``bound="auto"`` computes the Held–Karp bound."""
 
 
-class Reason(StrEnum):
-    """Why a candidate pose was not planned."""
-
-    MAX_ELEVATION = "max-elevation"
-    DUPLICATE = "duplicate"
-    UNREACHABLE = "unreachable"
-    JOINT_LIMITS = "joint-limits"
-    ARM_COLLISION = "arm-collision"
-    UNROUTABLE = "no-route"
-    SHADOW = "shadow"
-    FOOTPRINT = "footprint"
-    RECIPROCAL = "reciprocal"
-
-
-SAFETY_REASONS = frozenset({Reason.ARM_COLLISION, Reason.SHADOW})
-"""Reasons the guard reports as :class:`CollisionError` (the others as LimitError)."""
-
-
-@dataclass(frozen=True)
-class Rejection:
-    """A candidate pose left out, the reason, and a human-readable detail."""
-
-    pose: Pose
-    reason: Reason
-    detail: str
-
-
-@dataclass(frozen=True)
-class PlannedPose:
-    """One accepted pose in capture order with its joint targets (degrees).
-
-    ``pose`` is the pose the joints realise: the requested one, or its mirror image
-    (Δφ → −Δφ) when the plan's table folds Δφ and the mirrored solution moves less.
-    """
-
-    index: int
-    pose: Pose
-    joints: Joints
-    move_s: float
-    """Predicted duration of the move into this pose from the previous one (routed round the
-    other arm when the direct move is not safe)."""
-    via: tuple[Joints, ...] = ()
-    """Via points of that move when it is routed (empty: the direct move is safe)."""
-
-
-@dataclass
-class Sweep:
-    """The planner's output: the ordered poses, the rejections, and the time estimate (s)."""
-
-    steps: list[PlannedPose]
-    rejected: list[Rejection]
-    start_joints: Joints
-    motion_s: float
-    overhead_s: float
-    naive_motion_s: float = float("nan")
-    lower_bound_motion_s: float = float("nan")
-    extra: dict[str, float] = field(default_factory=dict)
-    reference_s: float = 0.0
-    """Moves to, captures of and moves back from the white reference the session adds."""
-
-    @property
-    def estimated_s(self) -> float:
-        """Total predicted duration: motion, per-pose settle/bus/exposure, white references."""
-        return self.motion_s + self.overhead_s + self.reference_s
-
-    def rejected_counts(self) -> dict[str, int]:
-        return dict(Counter(r.reason.value for r in self.rejected))
-
-    def summary(self) -> dict[str, object]:
-        """The figures ``gonio plan --json`` prints (seconds)."""
-        return {
-            "poses": len(self.steps),
-            "rejected": self.rejected_counts(),
-            "estimated_s": round(self.estimated_s, 3),
-            "motion_s": round(self.motion_s, 3),
-            "naive_motion_s": round(self.naive_motion_s, 3),
-            "lower_bound_motion_s": round(self.lower_bound_motion_s, 3),
-        }
-
-
-def segment_params(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Where segments p1–q1 and p2–q2 (…, 3) come closest: the fractions (s, t) ∈ [0, 1] along
-    each, vectorised."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a = np.sum(d1 * d1, -1)
-    e = np.sum(d2 * d2, -1)
-    f = np.sum(d2 * r, -1)
-    c = np.sum(d1 * r, -1)
-    b = np.sum(d1 * d2, -1)
-    denom = a * e - b * b
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.where(denom > 1e-15, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
-        t = np.where(e > 1e-15, (b * s + f) / e, 0.0)
-        s = np.where(t < 0, np.where(a > 1e-15, np.clip(-c / a, 0, 1), 0.0), s)
-        s = np.where(t > 1, np.where(a > 1e-15, np.clip((b - c) / a, 0, 1), 0.0), s)
-        t = np.clip(t, 0.0, 1.0)
-    return s, t
-
-
-def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Shortest distance between segments p1–q1 and p2–q2 (…, 3), vectorised."""
-    s, t = segment_params(p1, q1, p2, q2)
-    gap = (p1 + (q1 - p1) * s[..., None]) - (p2 + (q2 - p2) * t[..., None])
-    return np.linalg.norm(gap, axis=-1)
-
-
 def _fmt_pose(p: np.ndarray | Pose) -> str:
     ti, tr, dp = p.as_tuple() if isinstance(p, Pose) else p
     return f"θi={ti:g}° θr={tr:g}° Δφ={dp:g}°"
 
 
-class Planner:
+class Planner(MoveGuard, SessionMoves):
     """Checks poses and joint targets against one rig's constraints and plans sweeps.
 
     Parameters
@@ -462,177 +346,6 @@ class Planner:
             return self._footprint_detail(pose)
         return "its reciprocal (θi ↔ θr) is already planned"
 
-    # -- single pose / joints (the guard) ----------------------------------------------
-
-    def joint_problem(self, joints: Mapping[str, float]) -> Rejection | None:
-        """The first safety constraint the joint targets violate, or None when they are safe.
-
-        Checks maximum elevation, soft limits, arm collision and the shadow cone (not the
-        footprint, which makes a measurement useless but not unsafe)."""
-        arr = self.kinematics.to_array(joints)[None]
-        pose_row = self.kinematics.poses_array(arr)[0]
-        pose = Pose(*map(float, pose_row))
-        if max(pose.theta_i, pose.theta_r) > self.max_elevation_deg + 1e-9:
-            return Rejection(pose, Reason.MAX_ELEVATION, self._detail(Reason.MAX_ELEVATION, pose_row))
-        bad = self.kinematics.violated_limits(joints)
-        if bad:
-            return Rejection(pose, Reason.JOINT_LIMITS, "; ".join(bad))
-        if self.collision_mask(arr)[0]:
-            gap = float(self.arm_gap_m(arr)[0]) + self.arms.clearance_m
-            where = f"overlap by {-gap * 1e3:.1f} mm" if gap < 0 else f"be {gap * 1e3:.1f} mm apart"
-            detail = (f"the arms' swept volumes would {where} (clearance "
-                      f"{self.arms.clearance_m * 1e3:g} mm)")
-            return Rejection(pose, Reason.ARM_COLLISION, detail)
-        light, camera = self.kinematics.forward_array(arr)
-        sep = float(angle_between_deg_array(light, camera)[0])
-        if sep < self.shadow_cone_deg:
-            detail = f"camera {sep:.2f}° from the light, inside the {self.shadow_cone_deg:g}° shadow cone"
-            return Rejection(pose, Reason.SHADOW, detail)
-        return None
-
-    def check_joints(self, joints: Mapping[str, float], moving: Sequence[str] | None = None
-                     ) -> None:
-        """The target part of the guard (:meth:`check_move`): raise unless the joint targets
-        pass every safety constraint, in one line naming the axes (``moving``: those the move
-        turns; all by default), where the arms would meet and what to do."""
-        missing = [n for n in self.kinematics.joint_names if n not in joints]
-        if missing:
-            raise LimitError(f"move names no target for {', '.join(missing)}: give every axis a target")
-        problem = self._remembered_problem(joints)
-        if problem is None:
-            return
-        err = CollisionError if problem.reason in SAFETY_REASONS else LimitError
-        raise err(self._target_refusal(problem, joints, moving))
-
-    def _remembered_problem(self, joints: Mapping[str, float]) -> Rejection | None:
-        """:meth:`joint_problem`, remembering the last :data:`MEMO_SIZE` targets (a session
-        step's target is checked when planned, routed and sent)."""
-        key = (tuple(float(joints[n]) for n in self.kinematics.joint_names),
-               self.max_elevation_deg, self.shadow_cone_deg, self.arms)
-        with self._memo_lock:
-            if key in self._target_memo:
-                return self._target_memo[key]
-        problem = self.joint_problem(joints)
-        with self._memo_lock:
-            self._target_memo[key] = problem
-            while len(self._target_memo) > MEMO_SIZE:
-                del self._target_memo[next(iter(self._target_memo))]
-        return problem
-
-    def _target_refusal(self, problem: Rejection, joints: Mapping[str, float],
-                        moving: Sequence[str] | None) -> str:
-        names = self.kinematics.joint_names
-        axes = list(moving) if moving else list(names)
-        at = {n: float(joints[n]) for n in names}
-        if problem.reason is Reason.JOINT_LIMITS:
-            limits = self.kinematics.limits
-            return refusals.limits([n for n in names if not limits[n].contains(at[n])],
-                                   self.kinematics.violated_limits(at))
-        if problem.reason is Reason.MAX_ELEVATION:
-            return refusals.elevation(axes, problem.pose.theta_i, problem.pose.theta_r,
-                                      self.max_elevation_deg)
-        if problem.reason is Reason.ARM_COLLISION:
-            return refusals.target_collision(axes, at, self.arm_meeting(at), self.arms.clearance_m)
-        light, camera = self.kinematics.forward_array(self.kinematics.to_array(at)[None])
-        return refusals.shadow(axes, at, float(angle_between_deg_array(light, camera)[0]),
-                               self.shadow_cone_deg)
-
-    def arm_meeting(self, joints: Mapping[str, float]) -> refusals.Meeting:
-        """Where the arms' capsules come closest at ``joints``: the clearance left there (m)
-        and the distance of each closest point from the sample centre along its arm (m)."""
-        arr = self.kinematics.to_array(joints)[None]
-        light, camera = self.kinematics.arm_directions_array(arr)
-        la, ca = self.arms.light, self.arms.camera
-        s, t = segment_params(light * la.from_m, light * la.to_m, camera * ca.from_m,
-                              camera * ca.to_m)
-        return refusals.Meeting(float(self.arm_gap_m(arr)[0]),
-                                la.from_m + float(s[0]) * (la.to_m - la.from_m),
-                                ca.from_m + float(t[0]) * (ca.to_m - ca.from_m))
-
-    def check_move(self, current: Mapping[str, float], target: Mapping[str, float]) -> None:
-        """The motion guard: raise unless ``target`` passes every safety constraint and the
-        move from ``current`` keeps the arms apart along its whole swept path, also when some
-        axes miss the sync write (:class:`LimitError` or :class:`CollisionError`, one line
-        naming the axes, where the arms would meet and what to do)."""
-        full = {**current, **target}
-        self.check_joints(full, self._moving(current, full))
-        if not self.kinematics.moving_arms:
-            return
-        names = self.kinematics.joint_names
-        problem = self.paths.problem(self.kinematics.to_array(current),
-                                     self.kinematics.to_array(full), names)
-        if problem is not None:
-            raise CollisionError(self.describe(problem))
-
-    def _moving(self, current: Mapping[str, float], full: Mapping[str, float]) -> list[str]:
-        """The axes a move from ``current`` to ``full`` turns (all when ``current`` lacks one)."""
-        names = self.kinematics.joint_names
-        if any(n not in current for n in names):
-            return list(names)
-        return [n for n in names if abs(full[n] - current[n]) > MOVING_DEG]
-
-    def describe(self, problem: PathProblem | None, *, routed: bool = True) -> str:
-        """The refusal of a move whose swept path ``problem`` shows (``routed=False``: and no
-        route round it exists): which axes, where on the way the arms would meet, what to do."""
-        if problem is None:  # cannot happen for a refused route; worded all the same
-            return refusals.refusal([], "no safe route was found", refusals.NO_ROUTE_ADVICE)
-        return refusals.swept_path(problem.moving, problem.others, problem.at,
-                                   self.arm_meeting(problem.at), self.arms.clearance_m,
-                                   routed=routed)
-
-    def route(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
-        """The legs of a safe move from ``current`` to ``target``: ``[target]`` when the direct
-        move is safe, else via points round the other arm, then ``target``.
-
-        Raises
-        ------
-        LimitError, CollisionError
-            ``target`` itself is unsafe, or no route exists inside the joint limits (one line).
-        """
-        full = {**current, **target}
-        moving = self._moving(current, full)
-        self.check_joints(full, moving)
-        if not self.kinematics.moving_arms:
-            return [full]
-        names = self.kinematics.joint_names
-        if self.approach and moving:
-            legs = self._approached(current, full)
-            if legs is not None:
-                return legs
-        return route_or_raise(self.router, current, full, names,
-                              lambda problem: self.describe(problem, routed=False))
-
-    def _approached(self, current: Mapping[str, float], full: Mapping[str, float]
-                    ) -> list[Joints] | None:
-        """The legs of a move that approaches ``full`` from the side every capture approaches
-        from (through :func:`~acquisition.geometry.approach.approach_point`), or None where
-        that point or its last leg is not safe (the move then goes straight)."""
-        names = self.kinematics.joint_names
-        lower = {n: self.kinematics.limits[n].min_deg for n in names}
-        pre = approach_point({n: full[n] for n in names}, lower)
-        try:
-            self.check_joints(pre)
-            legs = route_or_raise(self.router, current, pre, names,
-                                  lambda problem: self.describe(problem, routed=False))
-        except (LimitError, CollisionError):
-            return None
-        if self.paths.problem(self.kinematics.to_array(pre), self.kinematics.to_array(full),
-                              names) is not None:
-            return None
-        return [*legs, dict(full)]
-
-    def route_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
-        """Motion time (s) of :meth:`route` (the direct move's when it is safe or unroutable)."""
-        try:
-            legs = self.route(current, target)
-        except (LimitError, CollisionError):
-            return self.time_model.move_s(current, target)
-        total, at = 0.0, dict(current)
-        for leg in legs:
-            total += self.time_model.move_s(at, leg)
-            at = leg
-        return total
-
     def check_pose(self, pose: Pose, current: Mapping[str, float] | None = None) -> Joints | Rejection:
         """Joint targets for ``pose`` (the usable solution that moves least from ``current``),
         or the reason it cannot be measured."""
@@ -845,107 +558,6 @@ class Planner:
         wr = self.rig.white_reference
         result = self.check_pose(Pose(wr.theta_i, wr.theta_r, wr.delta_phi))
         return None if isinstance(result, Rejection) else result
-
-    def leg_s(self, current: Mapping[str, float], target: Mapping[str, float]) -> float:
-        """Predicted time (s) of the move as the rig will make it: routed when the direct move
-        is unsafe, each extra leg adding its bus time (goal write and confirming polls)."""
-        legs = self._legs(current, target)
-        total, at = 0.0, dict(current)
-        for leg in legs:
-            total += self.time_model.move_s(at, leg)
-            at = leg
-        return total + (len(legs) - 1) * self.time_model.costs.leg_bus_s
-
-    def _legs(self, current: Mapping[str, float], target: Mapping[str, float]) -> list[Joints]:
-        try:
-            return self.route(current, target)
-        except (LimitError, CollisionError):
-            return [dict(target)]
-
-    def _routed(self, steps: list[PlannedPose], start: Mapping[str, float]
-                ) -> tuple[list[PlannedPose], list[int]]:
-        """``steps`` with every move the session will make (white references included) checked
-        against the guard and, where the direct move is not safe, routed round the other arm
-        (via points and time); and the steps no route reaches.
-
-        Raises
-        ------
-        CollisionError
-            The white reference has no safe route: nothing can be captured.
-        """
-        if not self.kinematics.moving_arms or not steps:
-            return steps, []
-        ref = self.reference_joints()
-        # (from, to, the step entered or None for a reference, the step it leaves). A step's
-        # move_s is the move from the previous pose; the session also goes by the reference.
-        legs: list[tuple[Mapping[str, float], Mapping[str, float], int | None, int | None]] = []
-        if ref is not None:
-            legs += [(start, ref, None, None), (ref, steps[0].joints, None, 0)]
-        legs.append((start, steps[0].joints, 0, None))
-        every = self.reference_every
-        for i in range(1, len(steps)):
-            legs.append((steps[i - 1].joints, steps[i].joints, i, None))
-            if ref is not None and every and i % every == 0:
-                legs += [(steps[i - 1].joints, ref, None, i - 1), (ref, steps[i].joints, None, i)]
-        if ref is not None:
-            legs.append((steps[-1].joints, ref, None, len(steps) - 1))
-        names = self.kinematics.joint_names
-        a = np.array([[leg[0][n] for n in names] for leg in legs])
-        b = np.array([[leg[1][n] for n in names] for leg in legs])
-        out, stuck = list(steps), []
-        for k in np.flatnonzero(~self.transit_ok(a, b)):
-            cur, target, entered, other = legs[k]
-            try:
-                route = self.route(cur, target)
-            except CollisionError as exc:
-                culprit = entered if entered is not None else other
-                if culprit is None:
-                    raise CollisionError(f"the white reference cannot be reached safely from "
-                                         f"the start: {exc}") from None
-                stuck.append(culprit)
-                continue
-            if entered is not None:
-                out[entered] = dataclasses.replace(out[entered], via=tuple(route[:-1]),
-                                                   move_s=self.leg_s(cur, target))
-        return out, sorted(set(stuck))
-
-    def unsafe_moves(self, sweep_steps: Sequence[PlannedPose], start: Mapping[str, float]) -> int:
-        """How many moves of the session (white references included) the guard would refuse
-        along their route: 0 for every plan :meth:`plan` returns."""
-        ref = self.reference_joints()
-        points = ([start, ref] if ref is not None else [start]) + [s.joints for s in sweep_steps]
-        if ref is not None:
-            points.append(ref)
-        bad = 0
-        for a, b in zip(points, points[1:], strict=False):
-            try:
-                at = dict(a)
-                for leg in self.route(a, b):
-                    self.check_move(at, leg)
-                    at = leg
-            except (LimitError, CollisionError):
-                bad += 1
-        return bad
-
-    def _reference_s(self, steps: Sequence[PlannedPose], start: Mapping[str, float]) -> float:
-        """Time of the white-reference steps the session interleaves: first, every
-        ``reference_every`` poses, and last (each move routed as the rig will make it)."""
-        ref = self.reference_joints()
-        if ref is None:
-            return 0.0
-        leg, over = self.leg_s, self.time_model.step_overhead_s()
-        total = leg(start, ref) + over
-        if not steps:
-            return total
-        total -= steps[0].move_s  # the first pose is reached from the reference
-        total += leg(ref, steps[0].joints)
-        every = self.reference_every
-        if every:
-            for i in range(every, len(steps), every):
-                a, b = steps[i - 1].joints, steps[i].joints
-                total += leg(a, ref) + over + leg(ref, b) - steps[i].move_s
-        return total + leg(steps[-1].joints, ref) + over
-
 
 def serpentine(poses: Sequence[Pose]) -> list[Pose]:
     """Nested-loop order whose inner loops reverse direction on every pass (boustrophedon)."""

@@ -63,9 +63,10 @@ def peak_errors(table: IsotropicTable, truth: IsotropicTable) -> tuple[np.ndarra
 
 
 def assert_planner_applies(rig: RigConfig, alignment: Alignment, poses: list[Pose]) -> None:
-    """With ``alignment`` the planner's joints realise each pose on the true rig within 0.04°
-    (θi, θr and the angle between light and camera, which fixes Δφ); the rig file's model
-    misses one of them by more than 0.5°."""
+    """With ``alignment`` the planner's joints realise each pose on the true rig within 0.1°
+    (θi, θr and the angle between light and camera, which fixes Δφ: each combines up to two
+    calibrated parameters, each within 0.05°); the rig file's model misses one of them by more
+    than 0.5°."""
     errors, truth = rig.sim_errors, TrueGeometry(rig)
     assert errors is not None
     for pose in poses:
@@ -73,7 +74,7 @@ def assert_planner_applies(rig: RigConfig, alignment: Alignment, poses: list[Pos
                                              pose), pose)
         nominal = _miss_deg(realised_pose(Planner(rig), truth, errors, pose), pose)
         print(f"{pose}: calibrated miss {calibrated:.4f}°, nominal {nominal:.3f}°")
-        assert calibrated < 0.04 and nominal > 0.5, pose
+        assert calibrated < 0.1 and nominal > 0.5, pose
 
 
 def _miss_deg(got: np.ndarray, pose: Pose) -> float:

@@ -15,6 +15,7 @@ from conftest import EXAMPLES, grid_plan_text
 
 from acquisition import api
 from acquisition.analysis.report import budget_rows
+from acquisition.api.truth import relative_errors, truth_table
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
 from acquisition.geometry.kinematics import Pose, pose_from_directions
@@ -22,7 +23,6 @@ from acquisition.planning.planner import Planner
 from acquisition.reduction.point import reduce_session
 from acquisition.session.alignment import alignment_of, bundle_at
 from acquisition.simworld.misalignment import TrueGeometry
-from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable
 from calibration.bundle import CalibrationBundle
 

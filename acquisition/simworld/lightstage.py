@@ -30,8 +30,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import simulated_sensor
 from acquisition.config.stage import StageConfig
-from acquisition.formats.envmap import latlong_directions
-from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect, tangent_frames
+from acquisition.simworld.optics import latlong_cells, surface_view
 from acquisition.simworld.scene import SampleHolder, render_image, white_material
 from drivers.dmx import DmxWidget
 from drivers.lights import Fixture, LightController
@@ -84,34 +83,25 @@ def render_environment(rig: RigConfig, camera_dir: np.ndarray, material: Materia
                        env: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Radiance image (h, w, 3) of the sample lit by ``env`` from the upper hemisphere.
 
-    ``env`` is a lat-long map (H, W, 3) of radiance (see :mod:`acquisition.formats.envmap`);
-    every env pixel above the horizon is a distant light of its solid angle:
+    ``env`` is a lat-long map (H, W, 3) of radiance (the convention of
+    :mod:`acquisition.formats.envmap`; directions and solid angles from the simulator's own
+    :func:`~acquisition.simworld.optics.latlong_cells`); every env pixel above the horizon is
+    a distant light of its solid angle:
     L(p) = Σ_j env_j · Ω_j · f(wi_j, wo) · max(cos θi_j, 0).
     """
-    camera = PinholeCamera.looking_at_origin(camera_intrinsics(rig, shape), shape, camera_dir,
-                                             rig.camera_distance_m)
-    hits = intersect(rig.sample, camera.position, camera.ray_directions())
-    n = hits.normals
-    wo_world = camera.position - hits.points
-    wo_world /= np.linalg.norm(wo_world, axis=-1, keepdims=True)
-    t, b = tangent_frames(np.ascontiguousarray(n))
-    frame = np.stack([t, b, n], axis=1)  # (P, 3, 3): rows are the local axes
-    wo = np.einsum("pij,pj->pi", frame, wo_world)
-    dirs, omega = latlong_directions(env.shape[:2])
+    view = surface_view(rig, camera_dir, shape)
+    dirs, omega = latlong_cells(env.shape[:2])
     up = dirs[..., 2] > 0
     d, radiance = dirs[up], env[up] * omega[up][:, None]  # (M, 3), (M, 3)
-    out = np.zeros((len(n), 3))
-    for start in range(0, len(n), 256):  # bounded memory: 256 pixels × M directions
-        fr = frame[start:start + 256]
-        wi = np.einsum("pij,mj->pmi", fr, d)
-        wo_b = np.broadcast_to(wo[start:start + 256, None, :], wi.shape)
-        f = material.eval_vectors(wi, wo_b)
+    out = np.zeros((len(view.wo), 3))
+    for start in range(0, len(out), 256):  # bounded memory: 256 pixels × M directions
+        frames = view.frames[start:start + 256]
+        wi = np.einsum("pij,mj->pmi", frames, d)
+        wo = np.broadcast_to(view.wo[start:start + 256, None, :], wi.shape)
+        f = material.eval_vectors(wi, wo)
         cos = np.clip(wi[..., 2], 0.0, None)
         out[start:start + 256] = np.einsum("pmc,pm,mc->pc", f, cos, radiance)
-    visible = wo[:, 2] > 0
-    image = np.zeros((*shape, 3))
-    image[hits.hit] = np.where(visible[:, None], out, 0.0)
-    return image
+    return view.scatter(out)
 
 
 class SyncedSimWidget:

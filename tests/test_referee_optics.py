@@ -88,6 +88,34 @@ def test_the_referee_and_the_reduction_agree_per_pixel(
                                atol=1e-11 * ref.irradiance.max())
 
 
+@pytest.mark.parametrize("sample", ["sphere", "flat"])
+def test_a_raised_sample_is_the_rig_moved_down(sample: str) -> None:
+    """The sample (or plate) ``h`` above its place, as the misaligned rig has it, sees and is
+    lit as if camera and light were ``h`` lower: the reduction's pixel geometry, so moved,
+    agrees with the referee's raised sample."""
+    rig = load_rig(SPHERE_RIG)
+    if sample == "flat":
+        rig = flat_sample(rig)
+    h, light, camera = 0.004, unit(40.0, 30.0), unit(50.0, 200.0)
+    down = np.array([0.0, 0.0, h])
+    cam = imaging.PinholeCamera.looking_at_origin(imaging.camera_intrinsics(rig, SHAPE), SHAPE,
+                                                  camera, rig.camera_distance_m)
+    ref = imaging.pixel_geometry(dataclasses.replace(cam, position=cam.position - down),
+                                 light * rig.light_distance_m - down, rig.sample)
+    view = surface_view(rig, camera, SHAPE, height_m=h)
+    lit, wi, irradiance = view.lit_by(light * rig.light_distance_m)
+    mask = view.mask.copy()
+    mask[mask] = lit
+    np.testing.assert_array_equal(mask, ref.mask)
+    if sample == "flat":
+        np.testing.assert_array_equal(view.points[:, 2], h)
+    tol = 1e-10 if sample == "sphere" else 1e-13  # cos θ; grazing rays on the sphere's rim
+    np.testing.assert_allclose(wi[:, 2], ref.wi[:, 2], rtol=0.0, atol=tol)
+    np.testing.assert_allclose(view.wo[lit][:, 2], ref.wo[:, 2], rtol=0.0, atol=tol)
+    np.testing.assert_allclose(irradiance, ref.irradiance, rtol=0.0,
+                               atol=1e-11 * ref.irradiance.max())
+
+
 def test_the_camera_axes_follow_the_rig_conventions() -> None:
     """Right-handed (right × down = forward), image up = the sample's +z projected, and at the
     zenith up is −x."""

@@ -12,7 +12,7 @@ after every write, before anything can advance the clock.
 The camera sees the sum over LEDs of each LED's single-light image (lights add linearly):
 LED k at DMX level v_k (0–1), true relative intensity g_k and colour c_k contributes
 ``v_k · g_k · c_k ·`` the image under a point light of the rig's nominal intensity at
-``light_distance_m`` along its direction (:func:`acquisition.simworld.scene.render_image`).
+``light_distance_m`` along its direction (:func:`acquisition.simworld.scene.render_view`).
 
 :func:`render_environment` renders the same sample under distant light from a lat-long
 environment map restricted to the dome's hemisphere (z > 0 in the sample frame): the
@@ -30,8 +30,8 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import simulated_sensor
 from acquisition.config.stage import StageConfig
-from acquisition.simworld.optics import latlong_cells, surface_view
-from acquisition.simworld.scene import SampleHolder, render_image, white_material
+from acquisition.simworld.optics import SurfaceView, latlong_cells, surface_view
+from acquisition.simworld.scene import SampleHolder, render_view, white_material
 from drivers.dmx import DmxWidget
 from drivers.lights import Fixture, LightController
 from simulators.camera import SimCamera
@@ -60,14 +60,20 @@ class LightImages:
         self.camera_dir = np.asarray(camera_dir, dtype=float)
         self.shape = shape
         self._cache: dict[tuple[int, int, str | None], np.ndarray] = {}
+        self._views: dict[str | None, SurfaceView] = {}
 
     def image(self, k: int, material: Material, target: str | None = None) -> np.ndarray:
         """LED ``k``'s image of ``material`` (``target="flat"``: the white plate)."""
         key = (k, id(material), target)
         img = self._cache.get(key)
         if img is None:
-            img = render_image(self.rig, self.directions[k], self.camera_dir, material,
-                               self.shape, target).astype(np.float32)
+            view = self._views.get(target)
+            if view is None:  # the camera does not move: one view per target
+                view = self._views[target] = surface_view(self.rig, self.camera_dir, self.shape,
+                                                          target)
+            light = self.directions[k][None] * self.rig.light_distance_m
+            img = render_view(view, light, material,
+                              self.rig.light_intensity_w_per_sr).astype(np.float32)
             self._cache[key] = img
         return img
 

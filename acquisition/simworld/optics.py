@@ -121,8 +121,9 @@ def ray_sphere(origin: np.ndarray, rays: np.ndarray, centre_m: np.ndarray, radiu
     squared distances); rays whose closest approach is plainly outside are culled first."""
     rel = origin - centre_m  # the camera seen from the sphere's centre
     along = -(rays @ rel)  # distance to each ray's closest approach
-    miss2 = float(rel @ rel) - along * along  # (closest approach)², rough: a cull only
-    hit = (miss2 <= radius_m * radius_m * (1.0 + 1e-6)) & (along > 0.0)
+    far2 = float(rel @ rel)
+    miss2 = far2 - along * along  # (closest approach)², rough (cancellation): a cull only
+    hit = (miss2 <= radius_m * radius_m + 1e-9 * far2) & (along > 0.0)
     d, along = rays[hit], along[hit]
     closest = rel + along[:, None] * d  # centre → closest approach
     half2 = radius_m * radius_m - np.einsum("nk,nk->n", closest, closest)

@@ -41,7 +41,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.config.toml import Section
 from acquisition.simworld.misalignment import IMAGE_SOURCE_POINTS, TrueGeometry
-from acquisition.simworld.optics import surface_view
+from acquisition.simworld.optics import SurfaceView, surface_view
 from simulators.clock import SimClock
 from simulators.materials import Lambert, Material, material_from_spec
 
@@ -194,12 +194,19 @@ def render_image(
               else light_points)
     view = surface_view(rig, camera_dir, shape_superpixels, target_shape,
                         pointing_deg=pointing_deg, height_m=sample_height_m)
+    return render_view(view, points, material, rig.light_intensity_w_per_sr)
+
+
+def render_view(view: SurfaceView, light_points: np.ndarray, material: Material,
+                intensity_w_per_sr: float) -> np.ndarray:
+    """Radiance image (h, w, 3), W·sr⁻¹·m⁻², of what ``view`` sees under a lamp of
+    ``intensity_w_per_sr`` made of ``light_points`` (m, 3) (m), which share its intensity."""
     radiance = np.zeros((len(view.wo), 3))
-    for point in points:
+    for point in light_points:
         lit, wi, irradiance = view.lit_by(point)
         f = material.eval_vectors(wi, view.wo[lit])
-        radiance[lit] += f * (rig.light_intensity_w_per_sr * irradiance)[:, None]
-    return view.scatter(radiance / len(points))
+        radiance[lit] += f * (intensity_w_per_sr * irradiance)[:, None]
+    return view.scatter(radiance / len(light_points))
 
 
 def make_image_scene(

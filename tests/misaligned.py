@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition import api
+from acquisition.api.truth import truth_table
 from acquisition.cli import main
 from acquisition.config.rig import RigConfig
 from acquisition.config.simerrors import SimErrors
@@ -21,7 +22,6 @@ from acquisition.geometry.kinematics import Pose, pose_from_directions
 from acquisition.planning.planner import Planner
 from acquisition.reduction.point import reduce_session
 from acquisition.simworld.misalignment import TrueGeometry
-from acquisition.simworld.truth import truth_table
 from acquisition.tables import IsotropicTable
 
 MATERIAL = "ggx:albedo=0.1,alpha=0.06,f0=0.5"

@@ -226,6 +226,54 @@ def test_every_import_follows_the_table() -> None:
     assert not bad, "imports ARCHITECTURE.md does not allow:\n" + "\n".join(map(str, bad))
 
 
+REFEREES = ("simulators", "acquisition.simworld")
+"""The simulated world: it models the physics with code of its own."""
+JUDGED = ("acquisition.reduction", "acquisition.planning", "acquisition.calibrate")
+"""What the simulated world judges: a simulator that called it would agree with its bugs."""
+
+
+def referee_violations(root: Path) -> list[Violation]:
+    """Every run-time import (lazy, relative and string-literal dynamic ones included) of
+    judged code by a module of the simulated world."""
+    out: list[Violation] = []
+    for room in REFEREES:
+        for path in sorted((root / Path(*room.split("."))).rglob("*.py")):
+            module = module_name(path, root)
+            tree = ast.parse(path.read_text())
+            out.extend(Violation(module, line, imported)
+                       for line, imported in runtime_imports(tree, root, package_of(path, root))
+                       if any(_under(imported, judged) for judged in JUDGED))
+    return out
+
+
+def test_the_simulated_world_never_imports_the_code_it_judges() -> None:
+    bad = referee_violations(ROOT)
+    assert not bad, "a simulator imports judged code:\n" + "\n".join(map(str, bad))
+    for room in REFEREES:  # nor may the table let it
+        assert not [p for p in RULES[room] for j in JUDGED if _under(p, j) or _under(j, p)], room
+
+
+@pytest.mark.parametrize("line", [
+    "from acquisition.reduction.imaging import frame_geometry\n",
+    "def render():\n    from acquisition.planning.planner import Planner\n",
+    "from ..reduction import imaging\n",
+    "import importlib\nimportlib.import_module('acquisition.calibrate.pointing')\n",
+])
+def test_the_referee_rule_catches_a_simulator_that_borrows_judged_code(tmp_path: Path,
+                                                                       line: str) -> None:
+    root = _tree(tmp_path, {
+        "acquisition/__init__.py": "", "acquisition/simworld/__init__.py": "",
+        "acquisition/simworld/optics.py": "import numpy\nfrom acquisition.config import rig\n",
+        "acquisition/simworld/scene.py": line,
+        "acquisition/config/__init__.py": "", "acquisition/config/rig.py": "",
+        "acquisition/reduction/__init__.py": "", "acquisition/reduction/imaging.py": "",
+        "acquisition/planning/__init__.py": "", "acquisition/planning/planner.py": "",
+        "acquisition/calibrate/__init__.py": "", "acquisition/calibrate/pointing.py": "",
+    })
+    (root / "simulators" / "__init__.py").write_text("")
+    assert [v.module for v in referee_violations(root)] == ["acquisition.simworld.scene"]
+
+
 def _tree(tmp_path: Path, files: dict[str, str]) -> Path:
     for rel, text in files.items():
         path = tmp_path / rel

@@ -77,7 +77,7 @@ def test_grey_lambert_absolute_within_one_percent(calibrated: dict[str, Path]) -
 
 
 def test_rough_ggx_within_three_percent(calibrated: dict[str, Path]) -> None:
-    from acquisition.simworld.truth import relative_errors, truth_table
+    from acquisition.api.truth import relative_errors, truth_table
 
     out = calibrated["root"] / "rough-ggx"
     api.capture(calibrated["rig"], calibrated["plan"], out,

@@ -24,11 +24,11 @@ from misaligned import (
 )
 
 from acquisition.analysis.report import budget_rows
+from acquisition.api.truth import relative_errors
 from acquisition.cli import main
 from acquisition.config.rig import load_rig
 from acquisition.geometry.kinematics import Pose
 from acquisition.session.alignment import alignment_of, bundle_at
-from acquisition.simworld.truth import relative_errors
 from calibration.bundle import CalibrationBundle
 
 MISALIGNED = EXAMPLES / "rig-misaligned-sim.toml"

@@ -10,10 +10,10 @@ import pytest
 from conftest import SMALL_PLAN, grid_plan_text
 
 from acquisition import api
+from acquisition.api.truth import relative_errors, truth_table
 from acquisition.cli import main
 from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.journal import Journal
-from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable
 from drivers.errors import SafetyStop, SessionError
 

@@ -13,13 +13,13 @@ import pytest
 from conftest import grid_plan_text
 
 from acquisition import api
+from acquisition.api.truth import truth_table
 from acquisition.reduction.point import reduce_session
 from acquisition.session.engine import POSE, StepEvent
 from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.hdr import HDR_DONE_META, hdr_group
 from acquisition.session.journal import Journal
 from acquisition.session.observers import Observer
-from acquisition.simworld.truth import truth_table
 from drivers.errors import SafetyStop
 
 SHINY = "ggx:albedo=0.02,alpha=0.06,f0=0.9"

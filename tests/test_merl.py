@@ -319,7 +319,7 @@ def test_merl_material_spec_errors(tmp_path):
 
 
 def test_comparisons_leave_out_bins_where_the_truth_is_unmeasured() -> None:
-    from acquisition.simworld.truth import relative_errors
+    from acquisition.api.truth import relative_errors
     from acquisition.tables import IsotropicTable
 
     edges = np.array([0.0, 30.0, 60.0])

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.api.truth import relative_errors, truth_table
 from acquisition.session.folder import JOURNAL_FILE
 from acquisition.session.journal import Journal
-from acquisition.simworld.truth import relative_errors, truth_table
 from acquisition.tables import IsotropicTable
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "scripted_session.py"

@@ -11,7 +11,7 @@ import numpy as np
 
 from acquisition.analysis.plots import plot_slices
 from acquisition.api import sessions as api
-from acquisition.simworld.truth import relative_errors, truth_table
+from acquisition.api.truth import relative_errors, truth_table
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

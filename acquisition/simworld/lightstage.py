@@ -12,7 +12,7 @@ after every write, before anything can advance the clock.
 The camera sees the sum over LEDs of each LED's single-light image (lights add linearly):
 LED k at DMX level v_k (0–1), true relative intensity g_k and colour c_k contributes
 ``v_k · g_k · c_k ·`` the image under a point light of the rig's nominal intensity at
-``light_distance_m`` along its direction (:func:`acquisition.simworld.scene.render_image`).
+``light_distance_m`` along its direction (:func:`acquisition.simworld.scene.render_view`).
 
 :func:`render_environment` renders the same sample under distant light from a lat-long
 environment map restricted to the dome's hemisphere (z > 0 in the sample frame): the
@@ -30,9 +30,8 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import simulated_sensor
 from acquisition.config.stage import StageConfig
-from acquisition.formats.envmap import latlong_directions
-from acquisition.reduction.imaging import PinholeCamera, camera_intrinsics, intersect, tangent_frames
-from acquisition.simworld.scene import SampleHolder, render_image, white_material
+from acquisition.simworld.optics import SurfaceView, latlong_cells, surface_view
+from acquisition.simworld.scene import SampleHolder, render_view, white_material
 from drivers.dmx import DmxWidget
 from drivers.lights import Fixture, LightController
 from simulators.camera import SimCamera
@@ -61,14 +60,20 @@ class LightImages:
         self.camera_dir = np.asarray(camera_dir, dtype=float)
         self.shape = shape
         self._cache: dict[tuple[int, int, str | None], np.ndarray] = {}
+        self._views: dict[str | None, SurfaceView] = {}
 
     def image(self, k: int, material: Material, target: str | None = None) -> np.ndarray:
         """LED ``k``'s image of ``material`` (``target="flat"``: the white plate)."""
         key = (k, id(material), target)
         img = self._cache.get(key)
         if img is None:
-            img = render_image(self.rig, self.directions[k], self.camera_dir, material,
-                               self.shape, target).astype(np.float32)
+            view = self._views.get(target)
+            if view is None:  # the camera does not move: one view per target
+                view = self._views[target] = surface_view(self.rig, self.camera_dir, self.shape,
+                                                          target)
+            light = self.directions[k][None] * self.rig.light_distance_m
+            img = render_view(view, light, material,
+                              self.rig.light_intensity_w_per_sr).astype(np.float32)
             self._cache[key] = img
         return img
 
@@ -84,34 +89,25 @@ def render_environment(rig: RigConfig, camera_dir: np.ndarray, material: Materia
                        env: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Radiance image (h, w, 3) of the sample lit by ``env`` from the upper hemisphere.
 
-    ``env`` is a lat-long map (H, W, 3) of radiance (see :mod:`acquisition.formats.envmap`);
-    every env pixel above the horizon is a distant light of its solid angle:
+    ``env`` is a lat-long map (H, W, 3) of radiance (the convention of
+    :mod:`acquisition.formats.envmap`; directions and solid angles from the simulator's own
+    :func:`~acquisition.simworld.optics.latlong_cells`); every env pixel above the horizon is
+    a distant light of its solid angle:
     L(p) = Σ_j env_j · Ω_j · f(wi_j, wo) · max(cos θi_j, 0).
     """
-    camera = PinholeCamera.looking_at_origin(camera_intrinsics(rig, shape), shape, camera_dir,
-                                             rig.camera_distance_m)
-    hits = intersect(rig.sample, camera.position, camera.ray_directions())
-    n = hits.normals
-    wo_world = camera.position - hits.points
-    wo_world /= np.linalg.norm(wo_world, axis=-1, keepdims=True)
-    t, b = tangent_frames(np.ascontiguousarray(n))
-    frame = np.stack([t, b, n], axis=1)  # (P, 3, 3): rows are the local axes
-    wo = np.einsum("pij,pj->pi", frame, wo_world)
-    dirs, omega = latlong_directions(env.shape[:2])
+    view = surface_view(rig, camera_dir, shape)
+    dirs, omega = latlong_cells(env.shape[:2])
     up = dirs[..., 2] > 0
     d, radiance = dirs[up], env[up] * omega[up][:, None]  # (M, 3), (M, 3)
-    out = np.zeros((len(n), 3))
-    for start in range(0, len(n), 256):  # bounded memory: 256 pixels × M directions
-        fr = frame[start:start + 256]
-        wi = np.einsum("pij,mj->pmi", fr, d)
-        wo_b = np.broadcast_to(wo[start:start + 256, None, :], wi.shape)
-        f = material.eval_vectors(wi, wo_b)
+    out = np.zeros((len(view.wo), 3))
+    for start in range(0, len(out), 256):  # bounded memory: 256 pixels × M directions
+        frames = view.frames[start:start + 256]
+        wi = np.einsum("pij,mj->pmi", frames, d)
+        wo = np.broadcast_to(view.wo[start:start + 256, None, :], wi.shape)
+        f = material.eval_vectors(wi, wo)
         cos = np.clip(wi[..., 2], 0.0, None)
         out[start:start + 256] = np.einsum("pmc,pm,mc->pc", f, cos, radiance)
-    visible = wo[:, 2] > 0
-    image = np.zeros((*shape, 3))
-    image[hits.hit] = np.where(visible[:, None], out, 0.0)
-    return image
+    return view.scatter(out)
 
 
 class SyncedSimWidget:

@@ -10,10 +10,11 @@ Two renderers, chosen by the rig file's ``[sample] image_based``:
 
 * region of interest (default): the flat sample covers a rectangle around the region of
   interest with one uniform radiance, that of the sample's centre;
-* image-based: every superpixel is rendered with its own geometry
-  (:mod:`acquisition.reduction.imaging`: pinhole camera, flat or spherical sample, point light), so
-  the radiance is f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat
-  Lambertian plate of the sample's ``size_m`` at the origin, rendered the same way.
+* image-based: every superpixel is rendered with its own TRUE geometry, computed by the
+  simulated camera's own optics (:mod:`acquisition.simworld.optics`: pinhole camera, flat or
+  spherical sample, the lamp's points), never by the reduction it judges, so the radiance is
+  f(wi, wo) · I cos θi / r² per pixel. The white reference is a flat Lambertian plate of the
+  sample's ``size_m`` in the sample's place (raised with it), rendered the same way.
 
 Calibration targets (:meth:`SampleHolder.present`): ``"cap"`` (the lens cap: a black frame),
 ``"uniform"`` (a uniform white target filling the frame, at the white reference's radiance
@@ -30,7 +31,6 @@ device clock t (s), a factor on every lit frame (see :class:`LightDrift`)::
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,10 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.config.rig import RigConfig, SampleConfig
+from acquisition.config.rig import RigConfig
 from acquisition.config.toml import Section
-from acquisition.reduction.imaging import frame_geometry
 from acquisition.simworld.misalignment import IMAGE_SOURCE_POINTS, TrueGeometry
+from acquisition.simworld.optics import SurfaceView, surface_view
 from simulators.clock import SimClock
 from simulators.materials import Lambert, Material, material_from_spec
 
@@ -182,23 +182,31 @@ def render_image(
     *,
     light_points: np.ndarray | None = None,
     pointing_deg: tuple[float, float] = (0.0, 0.0),
-    sample: SampleConfig | None = None,
+    sample_height_m: float = 0.0,
 ) -> np.ndarray:
     """Radiance image (h, w, 3), W·sr⁻¹·m⁻², of the sample (or, with ``target_shape="flat"``,
     the white plate) for arm directions in the sample frame; black off the sample.
 
     ``light_points`` (m, 3): the lamp as points sharing its intensity (default: a point at
-    the light's distance); ``pointing_deg``: the camera's pointing error; ``sample``: the
-    sample as it really sits (default the rig file's)."""
+    the light's distance); ``pointing_deg``: the camera's pointing error; ``sample_height_m``:
+    the sample (and plate) above its nominal place, m."""
     points = (np.asarray(light_dir, float)[None] * rig.light_distance_m if light_points is None
               else light_points)
-    image = np.zeros((*shape_superpixels, 3))
-    for point in points:
-        geo = frame_geometry(rig, light_dir, camera_dir, shape_superpixels, target_shape,
-                             pointing_deg=pointing_deg, light_pos=point, sample=sample)
-        f = material.eval_vectors(geo.wi, geo.wo)
-        image += geo.scatter(f * (rig.light_intensity_w_per_sr * geo.irradiance)[:, None])
-    return image / len(points)
+    view = surface_view(rig, camera_dir, shape_superpixels, target_shape,
+                        pointing_deg=pointing_deg, height_m=sample_height_m)
+    return render_view(view, points, material, rig.light_intensity_w_per_sr)
+
+
+def render_view(view: SurfaceView, light_points: np.ndarray, material: Material,
+                intensity_w_per_sr: float) -> np.ndarray:
+    """Radiance image (h, w, 3), W·sr⁻¹·m⁻², of what ``view`` sees under a lamp of
+    ``intensity_w_per_sr`` made of ``light_points`` (m, 3) (m), which share its intensity."""
+    radiance = np.zeros((len(view.wo), 3))
+    for point in light_points:
+        lit, wi, irradiance = view.lit_by(point)
+        f = material.eval_vectors(wi, view.wo[lit])
+        radiance[lit] += f * (intensity_w_per_sr * irradiance)[:, None]
+    return view.scatter(radiance / len(light_points))
 
 
 def make_image_scene(
@@ -210,9 +218,6 @@ def make_image_scene(
 ) -> Callable[[], np.ndarray]:
     """Per-pixel scene of an image-based rig, from the TRUE geometry at each call."""
     errors = truth.errors
-    raised = dataclasses.replace(rig.sample, centre_m=tuple(  # type: ignore[arg-type]
-        c + d for c, d in zip(rig.sample.centre_m, (0.0, 0.0, errors.sample_height_m),
-                              strict=True)))
 
     def scene() -> np.ndarray:
         if holder.current in ("cap", "uniform"):
@@ -225,7 +230,8 @@ def make_image_scene(
         target = None if holder.current == "sample" else "flat"
         image = render_image(rig, light, camera, holder.material, shape_superpixels, target,
                              light_points=truth.light_points(light, IMAGE_SOURCE_POINTS),
-                             pointing_deg=errors.camera_pointing_deg, sample=raised)
+                             pointing_deg=errors.camera_pointing_deg,
+                             sample_height_m=errors.sample_height_m)
         return image * holder.lamp()
 
     return scene

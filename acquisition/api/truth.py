@@ -5,11 +5,19 @@ through the same geometry model: the rig file's, or the geometric calibration's)
 table that differs from the measured one only by measurement error — the angular error of a
 misaligned rig included — which is what tests and the demo report (median relative error over
 measured bins).
+
+It is no part of the simulated world (which never calls the code it judges): it pairs the
+reduction's own claims — where each sample was taken and the bin it goes to
+(:class:`~acquisition.reduction.samplegeometry.SampleGeometry`) — with the simulated material
+evaluated at the claimed directions. A wrong claimed direction shows as an error, since the
+measured radiance comes from the simulator's true geometry; a sample put in the wrong bin for
+the right direction does not, since both tables bin alike.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,7 +27,9 @@ from acquisition.session.engine import POSE
 from acquisition.session.folder import SessionFolder
 from acquisition.simworld.materials import parse_material
 from acquisition.tables import IsotropicTable
-from simulators.materials import Material
+
+if TYPE_CHECKING:
+    from simulators.materials import Material
 
 
 def truth_table(session_dir: str | Path | SessionFolder, material: Material | None = None,

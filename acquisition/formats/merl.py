@@ -10,7 +10,9 @@ File layout (what the MERL reference reader ``BRDFRead.cpp`` reads), 34,992,012 
   R 1/1500, G 1.15/1500, B 1.66/1500;
 * negative values mark unmeasured bins (the reference prints "Below horizon.").
 
-The simulated camera's ``merl:PATH`` material lives in :mod:`acquisition.simworld.materials`.
+The simulated camera's ``merl:PATH`` material does not use this module: it reads and evaluates
+the file with the simulator's own code (:mod:`simulators.measured.merl`), so that a bug here or in
+:mod:`acquisition.geometry.halfdiff` shows in a capture-and-reduce round trip.
 """
 
 from __future__ import annotations

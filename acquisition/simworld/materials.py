@@ -1,6 +1,11 @@
 """Materials the simulated camera sees, from spec strings: the reference materials of
-:mod:`simulators.materials` (``lambert:``, ``ggx:``), measured MERL files (``merl:PATH``) and
-RGL-EPFL ``.bsdf`` files (``bsdf:PATH``, RGB; evaluated from their RGL fields alone).
+:mod:`simulators.materials` (``lambert:``, ``ggx:``, …), measured MERL files (``merl:PATH``)
+and RGL-EPFL ``.bsdf`` files (``bsdf:PATH``, RGB).
+
+The files are read and evaluated by the simulator's own code (:mod:`simulators.measured`),
+never by gonio's readers (``acquisition.formats``) and half/difference coordinates
+(``acquisition.geometry.halfdiff``), which the reduction's MERL table and the exporters use:
+a bug there must show in a capture-and-reduce round trip, not cancel out.
 
 Importing this module registers ``merl:PATH`` and ``bsdf:PATH`` in
 :data:`simulators.materials.MATERIAL_PARSERS`.
@@ -13,12 +18,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from acquisition.formats.merl import MerlBRDF, read_merl
-from acquisition.formats.rgl import RglBsdf, read_bsdf
-from drivers.errors import ConfigError, MaterialError
+from drivers.errors import MaterialError
 from simulators.materials import MATERIAL_PARSERS, Material, material_from_spec
+from simulators.measured.merl import MerlMaterial, read_merl_file
+from simulators.measured.rgl import RglMaterial, read_rgl_file
+
+__all__ = ["DEFAULT_MATERIAL", "MerlMaterial", "RglMaterial", "parse_material"]
 
 DEFAULT_MATERIAL = "ggx:albedo=0.2,alpha=0.3,f0=0.04"
 """What the simulated camera sees when no material is given: a rough dielectric GGX."""
@@ -28,28 +33,6 @@ def parse_material(spec: str) -> Material:
     """The simulated material of a spec string (``merl:PATH`` included); raises
     :class:`MaterialError` naming the problem."""
     return material_from_spec(spec)
-
-
-class MerlMaterial(Material):
-    """A MERL BRDF as a simulated material.
-
-    Evaluates like :meth:`MerlBRDF.eval_vectors`, but returns 0 for directions at or below the
-    horizon (the :class:`Material` contract) and for unmeasured (negative) bins.
-    """
-
-    def __init__(self, brdf: MerlBRDF, spec: str) -> None:
-        self.brdf = brdf
-        self.spec = spec
-
-    def eval_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
-        value = np.maximum(self.brdf.eval_vectors(wi, wo), 0.0)
-        above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return np.where(above[..., None], value, 0.0)
-
-    def __repr__(self) -> str:
-        return f"MerlMaterial({self.spec!r})"
 
 
 @functools.lru_cache(maxsize=8)
@@ -70,35 +53,20 @@ def _read_file_spec(prefix: str, text: str, example: str, read: Callable[[str], 
         return _read_cached(read, str(path.resolve()), st.st_mtime_ns, st.st_size), name
     except FileNotFoundError:
         raise MaterialError(f"material '{prefix}:{name}': file {path} does not exist") from None
-    except ConfigError as exc:
+    except MaterialError as exc:
         raise MaterialError(f"material '{prefix}:{name}': {exc}") from None
 
 
 def material_from_merl_spec(text: str) -> MerlMaterial:
     """Parser for ``merl:PATH`` (``text`` is PATH); raises :class:`MaterialError`."""
-    brdf, name = _read_file_spec("merl", text, "/data/merl/alum-bronze.binary", read_merl)
-    return MerlMaterial(brdf, f"merl:{name}")
+    merl, name = _read_file_spec("merl", text, "/data/merl/alum-bronze.binary", read_merl_file)
+    return MerlMaterial(merl, f"merl:{name}")
 
 
-class BsdfMaterial(Material):
-    """An RGL ``.bsdf`` file as a simulated material: its BRDF as the RGL reference evaluator
-    gives it (:meth:`RglBsdf.eval_vectors`), 0 at or below the horizon."""
-
-    def __init__(self, bsdf: RglBsdf, spec: str) -> None:
-        self.bsdf = bsdf
-        self.spec = spec
-
-    def eval_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        return self.bsdf.eval_vectors(wi, wo)
-
-    def __repr__(self) -> str:
-        return f"BsdfMaterial({self.spec!r})"
-
-
-def material_from_bsdf_spec(text: str) -> BsdfMaterial:
+def material_from_bsdf_spec(text: str) -> RglMaterial:
     """Parser for ``bsdf:PATH`` (``text`` is PATH); raises :class:`MaterialError`."""
-    bsdf, name = _read_file_spec("bsdf", text, "runs/s1/brdf.bsdf", read_bsdf)
-    return BsdfMaterial(bsdf, f"bsdf:{name}")
+    rgl, name = _read_file_spec("bsdf", text, "runs/s1/brdf.bsdf", read_rgl_file)
+    return RglMaterial(rgl, f"bsdf:{name}")
 
 
 MATERIAL_PARSERS["merl"] = material_from_merl_spec

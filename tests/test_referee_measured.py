@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_image_capture import merl_round_trip
-from test_rgl_bsdf import _mitsuba, _mitsuba_eval, _random_pairs
+from test_rgl_bsdf import _mitsuba, _mitsuba_eval, _random_pairs, write_random_bsdf
 
 import acquisition.formats.merl as gonio_merl
 import acquisition.geometry.halfdiff as gonio_halfdiff
@@ -232,37 +232,17 @@ def test_a_wrong_half_difference_conversion_fails_the_merl_round_trip(
 
 
 # ---------------------------------------------------------------------------- RGL .bsdf
-def _random_bsdf(path: Path, phi_i_deg: tuple[float, ...], rng: np.random.Generator) -> dict:
-    n_phi, res = len(phi_i_deg), 7
-    fields = {"theta_i": np.radians([0.0, 20.0, 50.0, 90.0]), "phi_i": np.radians(phi_i_deg),
-              "ndf": rng.uniform(0.5, 2, (6, 9)), "sigma": rng.uniform(0.5, 2, (5, 7)),
-              "vndf": rng.uniform(0.1, 2, (n_phi, 4, 8, 11)),
-              "luminance": rng.uniform(0.1, 2, (n_phi, 4, res, res)),
-              "rgb": rng.uniform(0, 1, (n_phi, 4, 3, res, res))}
-    if n_phi == 1:  # an isotropic material's tables are mirror-symmetric in relative azimuth
-        fields["ndf"][:] = fields["ndf"][0]
-        fields["sigma"][:] = fields["sigma"][0]
-        for name in ("vndf", "luminance", "rgb"):
-            fields[name] = (fields[name] + fields[name][..., ::-1, :]) / 2
-    fields = {k: np.asarray(v, np.float32) for k, v in fields.items()}
-    fields |= {"jacobian": np.ones(1, np.uint8), "description": np.frombuffer(b"random", np.uint8)}
-    write_tensor_file(path, fields, what="test file", ours=None)
-    return fields
-
-
 @pytest.mark.parametrize("phi_i_deg", [(0,), (0, 45, 90), (0, 60, 120, 180),
                                        (-180, -90, 0, 90, 180)])
 def test_the_referee_evaluates_bsdf_files_as_gonio_and_mitsuba_do(
         phi_i_deg: tuple[float, ...], tmp_path: Path) -> None:
     """Random files (isotropic; anisotropic with symmetry reductions 4, 2 and none): the
     referee's value agrees with gonio's reader to float64 rounding (measured ≤ 2e-13 relative)
-    and with Mitsuba 3's plug-in to its float32 arithmetic. (Mitsuba leaves its symmetry
-    reduction uninitialised for an isotropic file and here mirrors it by the sign of y: no
-    change for tables symmetric in relative azimuth, as an isotropic material's are, hence the
-    symmetric random isotropic file.)"""
+    and with Mitsuba 3's plug-in to its float32 arithmetic (an isotropic file's tables are
+    symmetric in relative azimuth: see :func:`write_random_bsdf`)."""
     rng = np.random.default_rng(len(phi_i_deg))
     path = tmp_path / "random.bsdf"
-    fields = _random_bsdf(path, phi_i_deg, rng)
+    fields = write_random_bsdf(path, phi_i_deg, rng)
     ours = read_rgl_file(path)
     view, light = _random_pairs(rng, 20_000)
     mine = ours.eval_cos(view, light)
@@ -278,7 +258,7 @@ def test_the_referee_evaluates_bsdf_files_as_gonio_and_mitsuba_do(
 
 def test_bsdf_directions_below_the_horizon_give_zero(tmp_path: Path) -> None:
     path = tmp_path / "iso.bsdf"
-    _random_bsdf(path, (0,), np.random.default_rng(0))
+    write_random_bsdf(path, (0,), np.random.default_rng(0))
     material = material_from_spec(f"bsdf:{path}")
     up, down = np.array([[0.3, 0.0, 0.954]]), np.array([[0.3, 0.0, -0.954]])
     assert (material.eval_vectors(up, up) > 0).all()
@@ -288,7 +268,7 @@ def test_bsdf_directions_below_the_horizon_give_zero(tmp_path: Path) -> None:
 
 def test_malformed_bsdf_files_are_refused_in_one_line(tmp_path: Path) -> None:
     path = tmp_path / "ok.bsdf"
-    fields = _random_bsdf(path, (0,), np.random.default_rng(0))
+    fields = write_random_bsdf(path, (0,), np.random.default_rng(0))
     cut = tmp_path / "cut.bsdf"
     cut.write_bytes(path.read_bytes()[:400])
     with pytest.raises(MaterialError, match="truncated or malformed"):

@@ -33,6 +33,7 @@ import numpy as np
 
 from drivers.errors import MaterialError
 from simulators.materials import Material
+from simulators.measured.files import read_material_bytes
 
 RESOLUTION = (90, 90, 180)
 """(θh, θd, φd) bins."""
@@ -68,8 +69,8 @@ def half_difference_rad(wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
     theta_h = np.arccos(np.clip(h[:, 2], -1.0, 1.0))
     phi_h = np.arctan2(h[:, 1], h[:, 0])
-    into_half_frame = _rotation_about_y(-theta_h) @ _rotation_about_z(-phi_h)
-    d = (into_half_frame @ wi[:, :, None])[:, :, 0]
+    d = _rotation_about_y(-theta_h) @ (_rotation_about_z(-phi_h) @ wi[:, :, None])
+    d = d[:, :, 0]
     theta_d = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
     return theta_h, theta_d, np.arctan2(d[:, 1], d[:, 0])
 
@@ -112,12 +113,7 @@ class MerlFile:
 def read_merl_file(path: str | Path) -> MerlFile:
     """Read a MERL ``.binary`` file; :class:`MaterialError` naming what is wrong."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise MaterialError(f"MERL file {path} does not exist: check the path") from None
-    except OSError as exc:
-        raise MaterialError(f"MERL file {path} cannot be read: {exc.strerror or exc}") from None
+    raw = read_material_bytes(path, "MERL file")
     dims = np.frombuffer(raw[:12], dtype="<i4") if len(raw) >= 12 else np.zeros(0)
     if dims.size != 3 or int(np.prod(dims, dtype=np.int64)) != N_BINS:
         raise MaterialError(f"MERL file {path}: header {tuple(int(d) for d in dims)} does not hold "

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.errors import MaterialError
+from simulators.measured.files import read_material_bytes
 
 MAGIC = b"tensor_file\0"
 TYPE_CODES = {1: "u1", 2: "i1", 3: "u2", 4: "i2", 5: "u4", 6: "i4", 7: "u8", 8: "i8",
@@ -64,12 +65,7 @@ def _fields(raw: bytes) -> dict[str, np.ndarray]:
 def read_tensor_fields(path: str | Path) -> dict[str, np.ndarray]:
     """Every field of a tensor file, name → array; :class:`MaterialError` naming what is wrong."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise MaterialError(f"tensor file {path} does not exist: check the path") from None
-    except OSError as exc:
-        raise MaterialError(f"tensor file {path} cannot be read: {exc.strerror or exc}") from None
+    raw = read_material_bytes(path, "tensor file")
     if not raw.startswith(MAGIC):
         raise MaterialError(f"{path} is not a tensor file (no 'tensor_file' magic): give an "
                             "RGL .bsdf file")

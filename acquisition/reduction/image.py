@@ -285,7 +285,7 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
                       "uncertainties": {"white_reference": np.abs(fs.brdf) * rel}}
         table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf, **budget)
         if angular is not None and fs.pixels is not None and fs.shape and fs.joints:
-            angular.add(fs.joints, fs.shape, fs.pixels, angles, fs.brdf)
+            angular.add(fs.joints, fs.shape, fs.pixels, fs.wi, fs.wo, fs.brdf)
         samples += fs.count
         count += 1
         if progress:

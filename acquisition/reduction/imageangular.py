@@ -57,7 +57,7 @@ import numpy as np
 
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.halfdiff import halfdiff_from_vectors
-from acquisition.geometry.kinematics import Kinematics
+from acquisition.geometry.kinematics import Kinematics, poses_from_directions
 from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
@@ -130,46 +130,31 @@ class ImageAngular:
         return s.independent or s.correlated or s.source
 
     def add(self, joints: Mapping[str, float], shape: tuple[int, int], pixels: Pixels,
-            angles: np.ndarray, values: np.ndarray) -> None:
+            wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> None:
         """One frame: its read-back joints, image shape (superpixels), and its samples' pixels
-        (rows, columns), angles (N, 3: θi, θr, Δφ, deg) and values (N, 3)."""
+        (rows, columns), local directions (N, 3) and values (N, 3)."""
         if not self.active:
             return
-        flat = self.table.flat_index(angles[:, 0], angles[:, 1], angles[:, 2])
-        keep = (flat >= 0) & np.all(np.isfinite(values), axis=1)
-        if not keep.any():
+        group = _FrameGroups.of(self.table, pixels, wi, wo, values)
+        if group is None:
             return
-        bins, inv, count = np.unique(flat[keep], return_inverse=True, return_counts=True)
-        rc = np.column_stack([pixels[0][keep], pixels[1][keep]])
-
-        def mean(x: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.bincount(inv, x[:, c], len(bins)) for c in
-                                    range(x.shape[1])]) / count[:, None]
-
-        d2 = np.sum((rc - mean(rc.astype(float))[inv]) ** 2, axis=1)
-        central = np.lexsort((d2, inv))[np.concatenate([[0], np.cumsum(count)[:-1]])]
-        at = _PixelCoordinates(self.rig, self.model, joints, shape,
-                               (rc[central, 0], rc[central, 1]))
+        at = _PixelCoordinates(self.rig, self.model, joints, shape, group.central)
         raw = at.coords()
-        sign = np.ones((len(bins), 4, 1))
-        sign[:, :2, 0] = np.where(raw[:, :2] < 0, -1.0, 1.0)
-        sign[raw[:, 2] < DEGENERATE_THETA_D_DEG, :2] = 0.0
-        s, value = self.sources, mean(values[keep])
-
-        def folded(jac: np.ndarray) -> np.ndarray:
-            return np.nan_to_num(jac) * sign
-
-        coords = np.column_stack([np.abs(raw[:, :2]), raw[:, 2:]])
-        grad, hess = _models(np.nan_to_num(coords), value)
+        s = self.sources
+        grad, hess = _models(np.nan_to_num(np.column_stack([np.abs(raw[:, :2]), raw[:, 2:]])),
+                             group.value)
+        sign, product = group.sign_means(raw[:, 2] >= DEGENERATE_THETA_D_DEG)
+        grad, hess = grad * sign[:, None, :], hess * product[:, None, :, :]
         disc = None
         if s.source:
-            dj = folded(at.disc_jacobians())
+            dj = np.nan_to_num(at.disc_jacobians())
             disc = np.einsum("kil,kjl->kij", dj, dj) * s.source_radius_deg**2 / 4.0
         terms = terms_at(
-            s, grad, hess, value, folded(at.joint_jacobians()) if s.independent else None,
-            folded(at.calibration_jacobians(s.calibration_names)) if s.correlated else None,
-            disc)
-        self._frames.append(FrameBins(bins, count, value, terms))
+            s, grad, hess, group.value,
+            np.nan_to_num(at.joint_jacobians()) if s.independent else None,
+            np.nan_to_num(at.calibration_jacobians(s.calibration_names)) if s.correlated
+            else None, disc)
+        self._frames.append(FrameBins(group.bins, group.count, group.value, terms))
 
     def terms(self) -> tuple[dict[str, str], dict[str, str]]:
         """(independent, correlated) names → descriptions of the terms :meth:`apply` adds."""
@@ -211,6 +196,57 @@ class ImageAngular:
             for name, description in correlated.items():
                 t.set_bin_term(name, description, binned(total(k * terms.calibration) / n),
                                correlated=True)
+
+
+@dataclass(frozen=True)
+class _FrameGroups:
+    """A frame's pixels grouped by bin (:meth:`of`): each group's bin, pixel count, mean
+    value, central pixel (nearest its centroid in the image) and the mean signs of its pixels'
+    (θh cos φd, θh sin φd), and of their product."""
+
+    bins: np.ndarray
+    count: np.ndarray
+    value: np.ndarray
+    central: Pixels
+    sign: np.ndarray
+    """(K, 2) mean signs."""
+    product: np.ndarray
+    """(K,) mean sign product."""
+
+    @classmethod
+    def of(cls, table: IsotropicTable, pixels: Pixels, wi: np.ndarray, wo: np.ndarray,
+           values: np.ndarray) -> _FrameGroups | None:
+        angles = poses_from_directions(wi, wo)
+        flat = table.flat_index(angles[:, 0], angles[:, 1], angles[:, 2])
+        keep = (flat >= 0) & np.all(np.isfinite(values), axis=1)
+        if not keep.any():
+            return None
+        bins, inv, count = np.unique(flat[keep], return_inverse=True, return_counts=True)
+
+        def mean(x: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.bincount(inv, x[:, c], len(bins)) for c in
+                                    range(x.shape[1])]) / count[:, None]
+
+        rc = np.column_stack([pixels[0][keep], pixels[1][keep]])
+        d2 = np.sum((rc - mean(rc.astype(float))[inv]) ** 2, axis=1)
+        central = np.lexsort((d2, inv))[np.concatenate([[0], np.cumsum(count)[:-1]])]
+        phi_d = np.radians(halfdiff_from_vectors(wi[keep], wo[keep])[2])
+        signs = np.column_stack([np.where(np.cos(phi_d) < 0, -1.0, 1.0),
+                                 np.where(np.sin(phi_d) < 0, -1.0, 1.0)])
+        return cls(bins, count, mean(values[keep]), (rc[central, 0], rc[central, 1]),
+                   mean(signs), mean(signs[:, :1] * signs[:, 1:])[:, 0])
+
+    def sign_means(self, defined: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mean over each group's pixels of s (K, 4) and of s sᵀ (K, 4, 4), s the signs of
+        their coordinates (1 for θd and θi; 0 for the first two where φd is not ``defined``):
+        a local model of the folded coordinates, times them, is the groups' mean model in
+        raw coordinates (its Jacobians are the central pixel's, smooth across a group)."""
+        m = np.ones((len(self.bins), 4))
+        m[:, :2] = self.sign * defined[:, None]
+        out = m[:, :, None] * m[:, None, :]
+        out[:, 0, 0] = out[:, 1, 1] = defined
+        out[:, 0, 1] = out[:, 1, 0] = self.product * defined
+        return m, out
 
 
 def _models(coords: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

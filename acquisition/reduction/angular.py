@@ -18,14 +18,18 @@ A sample's value belongs to the pose the reduction's geometry model gives its re
 
 Each joint error moves the pose by the kinematics' Jacobian (:func:`pose_jacobians`), and the
 measured value by the BRDF's relative change there, times cos θi_true / cos θi (the
-irradiance the reduction divides by). The BRDF's local variation comes from the measurement
-itself: a weighted quadratic fit of ln f over each sample's neighbours
-(:func:`local_log_models`; reciprocity and Δφ ↔ −Δφ supply neighbours on every side). Where the
-first-order term Gᵀ Σ G is adequate it is used; near an extremum (a peak, where the gradient
-vanishes and the curvature rules: second-order terms above :data:`NONLINEAR_FRACTION` of it)
-the independent term is a Monte Carlo over :data:`MC_DRAWS` fixed draws of the joint errors
-(GUM Supplement 1), the correlated one the second-order closed form for Gaussian errors. Both
-are returned as relative variances of the sample's value.
+irradiance the reduction divides by: :func:`with_irradiance`). The BRDF's local variation
+comes from the measurement itself: a weighted quadratic fit of ln f over each sample's
+neighbours (:func:`local_log_models`; reciprocity and Δφ ↔ −Δφ supply neighbours on every
+side). Where the first-order term Gᵀ Σ G is adequate it is used; near an extremum (a peak,
+where the gradient vanishes and the curvature rules: second-order terms above
+:data:`NONLINEAR_FRACTION` of it) the independent term is a Monte Carlo over :data:`MC_DRAWS`
+fixed draws of the joint errors (GUM Supplement 1), the correlated one the second-order closed
+form for Gaussian errors. Both are returned as relative variances of the sample's value.
+
+:func:`terms_at` computes the terms in any coordinates the local model and the Jacobians share
+(the point reduction's (θi, θr, |Δφ|); the image-based reduction's half/difference ones,
+:mod:`acquisition.reduction.imageangular`), and :func:`local_models` fits in any of them.
 """
 
 from __future__ import annotations

@@ -37,7 +37,22 @@ one frame's samples are held at any time.
 The isotropic table's budget has the point reduction's terms (each pixel's noise, the white
 plate's) and a ``binning`` term: a bin gathers pixels spread over its whole extent, so its
 mean depends on where they fell; the observed scatter beyond the noise, over √n, says by how
-much (:func:`acquisition.tables.uncertainty.binning_variance_sums`).
+much (:func:`acquisition.tables.uncertainty.binning_variance_sums`). On a rig whose file
+states backlash, position noise or a lamp of finite size, or with a geometric calibration
+applied, it has the angular terms too (:mod:`acquisition.reduction.imageangular`):
+
+* ``angular`` (independent between bins): where the arms really stood, through the BRDF's
+  local slope; the pixels one frame puts in a bin share their frame's error (it adds linearly
+  over them), frames add in quadrature;
+* ``source_size`` (independent): 30 % of the correction of each bin's mean for the lamp's
+  blur (the MERL table keeps the pixels' values as measured);
+* ``geometry_calibration`` (correlated): the calibration's 1σ — zero offsets, sample tilt,
+  backlash and the camera's pointing.
+
+Against the material at the very pixels of each bin (where they fell is then no error: the
+``binning`` term left aside), a sphere rig's peak bins (truth ≥ half its maximum) have
+errors over their standard uncertainty scattering with a standard deviation within 0.7–1.3
+(tests/test_image_angular.py).
 """
 
 from __future__ import annotations

@@ -10,7 +10,9 @@ lamp's disc). Three things differ from a point reduction's.
 moves the geometry of every pixel of that frame at once (and the calibration's error that of
 every pixel of every frame). Within a bin, the pixels one frame puts there (a *frame-bin*)
 share their error: it adds linearly over them and does not average down as 1/√n; frames, each
-its own draw of the joint errors, add in quadrature. So a bin's ``angular`` term is
+its own draw of the joint errors, add in quadrature (a rig stating backlash approaches every
+target afresh; an arm that stays put between two frames keeps its error, which the budget does
+not follow). So a bin's ``angular`` term is
 √(Σₖ nₖ² varₖ) / n — varₖ the variance of frame-bin k's mean value, nₖ its pixels, n the
 bin's — where counting the pixels as independent would make it up to √nₖ times smaller. The
 calibration's term adds linearly over the bin's frame-bins, u = Σₖ nₖ uₖ / n (the table's rule

@@ -22,25 +22,31 @@ correlated terms, so ``angular`` is stored as independent between bins (as in th
 reduction, where every sample is its own frame): a fit taking it so weighs each bin right but
 counts one frame's error once per bin it reaches.
 
-**The BRDF's slope from the frames themselves, in half/difference coordinates.** A frame of a
+**The BRDF's slope from each frame itself, in half/difference coordinates.** A frame of a
 sphere is a two-dimensional slice of the BRDF at one light–camera angle (θd ≈ half of it), and
 a joint error moves its pixels off that slice. In (θi, θr, Δφ) neighbouring slices lie where a
-specular peak has moved on, so a local fit there mixes the peak's flanks; in the smooth
-coordinates u = (θh cos φd, θh sin φd, θd) (MERL's, Cartesian about the specular direction, so
-smooth through it) the peak stays put from slice to slice and only the slow θd dependence is
-taken across them. Each frame-bin is one point of the local quadratic model of ln f
-(:func:`~acquisition.reduction.angular.local_models`, with its mirror images: isotropy and
-reciprocity make f even in both components of θh·(cos φd, sin φd)); its mean is the BRDF
-averaged over its pixels' footprint, and moving or blurring the footprint changes that mean
-by the footprint's average of ∇f and of ½ tr(Σ ∇²f), the derivatives of the averaged BRDF the
-fit sees. The measured value divides by the assumed irradiance, so θi is a fourth coordinate
+specular peak has moved on, so a local fit there mixes the peak's flanks (its slopes came out
+up to 30 times too steep). In the coordinates (θh cos φd, θh sin φd, θd) (MERL's, Cartesian
+about the specular direction, so smooth through it) the peak stays put from slice to slice:
+the local quadratic model of ln f is fitted within the frame's slice, in the first two, over
+its frame-bins and their mirror images (isotropy and reciprocity make f even in both;
+:func:`~acquisition.reduction.angular.local_models`), and the slow θd dependence across slices
+(Fresnel, masking, the projected area: about 2 tan θd per radian at the peak, a few percent of
+the slopes within the slice there) is left out. A frame-bin's mean is the BRDF averaged over
+its pixels' footprint; moving or blurring the footprint changes it by the footprint's average
+of ∇f and of ½ tr(Σ ∇²f), the derivatives of the averaged BRDF the fit sees. The measured value
+divides by the assumed irradiance, so θi is a fourth coordinate
 (:func:`~acquisition.reduction.angular.with_irradiance`).
 
 **Jacobians through the pixels' own geometry.** Each frame-bin's coordinates and their
 Jacobians — with respect to the joints, to the calibration's parameters and to the lamp's
 position across its disc — are those of its pixel nearest its centroid in the image, by
 central differences through the reduction's per-pixel geometry
-(:func:`~acquisition.reduction.imaging.frame_geometry` at those pixels only).
+(:func:`~acquisition.reduction.imaging.frame_geometry` at those pixels only): smooth across the
+footprint in raw coordinates. The model, fitted in folded ones (|θh cos φd|, |θh sin φd|), is
+unfolded by the mean signs of the frame-bin's pixels (and of their products, for the
+curvature): mirror pixels on either side of the plane of incidence err in opposite senses, and
+their errors cancel in the mean as they do in the model.
 
 The lamp's blur is corrected in each bin's mean (by its frame-bins' value-weighted bias; the
 MERL table keeps the pixels' values as measured).

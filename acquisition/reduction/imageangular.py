@@ -26,12 +26,12 @@ counts one frame's error once per bin it reaches.
 sphere is a two-dimensional slice of the BRDF at one light–camera angle (θd ≈ half of it), and
 a joint error moves its pixels off that slice. In (θi, θr, Δφ) neighbouring slices lie where a
 specular peak has moved on, so a local fit there mixes the peak's flanks (its slopes came out
-up to 30 times too steep). In the coordinates (θh cos φd, θh sin φd, θd) (MERL's, Cartesian
+up to 25 times too steep). In the coordinates (θh cos φd, θh sin φd, θd) (MERL's, Cartesian
 about the specular direction, so smooth through it) the peak stays put from slice to slice:
 the local quadratic model of ln f is fitted within the frame's slice, in the first two, over
 its frame-bins and their mirror images (isotropy and reciprocity make f even in both;
 :func:`~acquisition.reduction.angular.local_models`), and the slow θd dependence across slices
-(Fresnel, masking, the projected area: about 2 tan θd per radian at the peak, a few percent of
+(Fresnel, masking, the projected area: about 2 tan θd per radian at the peak, under a tenth of
 the slopes within the slice there) is left out. A frame-bin's mean is the BRDF averaged over
 its pixels' footprint; moving or blurring the footprint changes it by the footprint's average
 of ∇f and of ½ tr(Σ ∇²f), the derivatives of the averaged BRDF the fit sees. The measured value

@@ -120,3 +120,33 @@ def test_a_table_that_tracks_uncertainty_refuses_samples_without_it() -> None:
     table.add(10.0, 20.0, 30.0, np.ones((1, 3)), variances={"noise": np.full((1, 3), 4e-4)},
               uncertainties={})
     assert table.std_error[0, 0, 0] == pytest.approx(0.02)
+
+
+def test_terms_a_bins_samples_share_are_set_per_bin_and_survive_the_file(tmp_path: Path) -> None:
+    """A term known per bin (an image's frame shares its error over its pixels) is the bin
+    mean's standard uncertainty as given; it adds to std_error in quadrature, is no part of the
+    samples' predicted scatter, and a per-bin correction scales the bin's values."""
+    table = IsotropicTable([0, 45, 90], [0, 45, 90], [0, 180])
+    table.track_uncertainty({"noise": ""}, {})
+    values = np.array([[1.0, 2.0, 3.0], [1.2, 2.2, 3.2]])
+    table.add(10.0, 20.0, 30.0, values, variances={"noise": np.full((2, 3), 0.01)},
+              uncertainties={})
+    scatter = table.scatter
+    shared = np.zeros(table.shape + (3,))
+    shared[0, 0, 0] = [0.3, 0.4, 0.5]
+    table.set_bin_term("angular", "shared", shared)
+    table.set_bin_term("geometry_calibration", "common", shared / 2, correlated=True)
+    terms = table.uncertainty_terms
+    assert not terms["angular"].correlated and terms["geometry_calibration"].correlated
+    np.testing.assert_allclose(terms["angular"].values[0, 0, 0], [0.3, 0.4, 0.5])
+    noise = np.sqrt(0.02) / 2
+    np.testing.assert_allclose(table.std_error[0, 0, 0],
+                               np.sqrt(noise**2 + 1.25 * np.array([0.3, 0.4, 0.5]) ** 2))
+    assert table.scatter == scatter  # the angular term predicts no scatter between samples
+    table.scale_bins(np.full(table.shape + (3,), 0.5))
+    np.testing.assert_allclose(table.mean[0, 0, 0], values.mean(axis=0) / 2)
+    np.testing.assert_allclose(table.variance[0, 0, 0], values.var(axis=0, ddof=1) / 4)
+    table.save_h5(tmp_path / "t.h5")
+    back = IsotropicTable.load_h5(tmp_path / "t.h5")
+    np.testing.assert_allclose(back.std_error[0, 0, 0], table.std_error[0, 0, 0])
+    assert back.uncertainty_terms["geometry_calibration"].correlated

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from acquisition.geometry.kinematics import poses_from_directions
+from acquisition.reduction.image import iter_session_samples
 from acquisition.reduction.point import find_bundle
 from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE
@@ -56,6 +58,29 @@ def truth_table(session_dir: str | Path | SessionFolder, material: Material | No
             value = material.eval_vectors(g.light_dir, g.camera_dir)
             table.add(np.array([pose.theta_i]), np.array([pose.theta_r]),
                       np.array([pose.delta_phi]), value[None, :])
+    return table
+
+
+def image_truth_table(session_dir: str | Path, material: Material | None = None, *,
+                      bundle: str | Path | None = None) -> IsotropicTable:
+    """An image-based session's material evaluated at every pixel the reduction keeps, at the
+    geometry it claims for it (its calibrated model, ``bundle`` as for
+    :func:`~acquisition.reduction.image.reduce_image_session`), binned like the reduction:
+    the measured table differs from it by the measurement's errors only (where the pixels fell
+    within a bin is the same in both)."""
+    folder = SessionFolder(session_dir)
+    if material is None:
+        if not folder.info.material:
+            raise ValueError(f"{folder.path} records no simulated material")
+        material = parse_material(folder.info.material)
+    plan = folder.plan()
+    table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
+                           plan.table.delta_phi_edges, provenance={"truth": material.spec})
+    for fs in iter_session_samples(folder.path, bundle=bundle):
+        angles = poses_from_directions(fs.wi, fs.wo)
+        keep = np.all(np.isfinite(fs.brdf), axis=1)  # the pixels the reduction bins
+        table.add(angles[keep, 0], angles[keep, 1], angles[keep, 2],
+                  material.eval_vectors(fs.wi[keep], fs.wo[keep]))
     return table
 
 

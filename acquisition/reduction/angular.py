@@ -18,19 +18,25 @@ A sample's value belongs to the pose the reduction's geometry model gives its re
 
 Each joint error moves the pose by the kinematics' Jacobian (:func:`pose_jacobians`), and the
 measured value by the BRDF's relative change there, times cos θi_true / cos θi (the
-irradiance the reduction divides by). The BRDF's local variation comes from the measurement
-itself: a weighted quadratic fit of ln f over each sample's neighbours
-(:func:`local_log_models`; reciprocity and Δφ ↔ −Δφ supply neighbours on every side). Where the
-first-order term Gᵀ Σ G is adequate it is used; near an extremum (a peak, where the gradient
-vanishes and the curvature rules: second-order terms above :data:`NONLINEAR_FRACTION` of it)
-the independent term is a Monte Carlo over :data:`MC_DRAWS` fixed draws of the joint errors
-(GUM Supplement 1), the correlated one the second-order closed form for Gaussian errors. Both
-are returned as relative variances of the sample's value.
+irradiance the reduction divides by: :func:`with_irradiance`). The BRDF's local variation
+comes from the measurement itself: a weighted quadratic fit of ln f over each sample's
+neighbours (:func:`local_log_models`; reciprocity and Δφ ↔ −Δφ supply neighbours on every
+side). Where the first-order term Gᵀ Σ G is adequate it is used; near an extremum (a peak,
+where the gradient vanishes and the curvature rules: second-order terms above
+:data:`NONLINEAR_FRACTION` of it) the independent term is a Monte Carlo over :data:`MC_DRAWS`
+fixed draws of the joint errors (GUM Supplement 1), the correlated one the second-order closed
+form for Gaussian errors. Both are returned as relative variances of the sample's value.
+
+:func:`terms_at` computes the terms in any coordinates the local model and the Jacobians share
+(the point reduction's (θi, θr, |Δφ|); the image-based reduction's half/difference ones,
+:mod:`acquisition.reduction.imageangular`), and :func:`local_models` fits in any of them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +65,11 @@ GROWTH_STEPS = 5
 SPREAD_FRACTION = 0.2
 """A neighbourhood must span this fraction of its bandwidth in every coordinate."""
 STEP_DEG = 1e-3
+FIT_BATCH = 256
+"""Local fits solved together (memory: FIT_BATCH × neighbours × 10 floats)."""
 RAD = np.pi / 180.0
+POINTING_PARAMS = ("camera_pointing_x", "camera_pointing_y")
+"""The camera pointing's calibration parameters (image-based rigs), deg."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +82,8 @@ class AngularSources:
     alignment: Alignment | None
     source_radius_deg: float = 0.0
     """Angular radius of the lamp's disc seen from the sample, deg."""
+    pointing: bool = False
+    """An image-based rig: the calibration's camera pointing (with its 1σ) is a parameter."""
 
     @classmethod
     def of(cls, rig: RigConfig, kinematics: Kinematics,
@@ -86,7 +98,8 @@ class AngularSources:
                             float),
                    np.array([axes[n].position_noise_deg for n in names], float),
                    alignment,
-                   float(np.degrees(rig.light_source_diameter_m / 2.0 / rig.light_distance_m)))
+                   float(np.degrees(rig.light_source_diameter_m / 2.0 / rig.light_distance_m)),
+                   rig.sample.image_based)
 
     @property
     def independent(self) -> bool:
@@ -98,33 +111,66 @@ class AngularSources:
 
     @property
     def correlated(self) -> bool:
+        return bool(np.any(np.diag(self.calibration_covariance()) > 0))
+
+    @property
+    def calibration_names(self) -> tuple[str, ...]:
+        """The calibration's parameters: the alignment's, then (image-based rigs) the camera
+        pointing's :data:`POINTING_PARAMS`."""
+        if self.alignment is None:
+            return ()
+        return self.alignment.param_names + (POINTING_PARAMS if self.pointing else ())
+
+    def calibration_covariance(self) -> np.ndarray:
+        """Covariance (P, P), deg², of :attr:`calibration_names` (an undetermined entry: 0;
+        the pointing, measured apart, uncorrelated with the rest)."""
         a = self.alignment
-        return a is not None and a.covariance_deg2 is not None and bool(a.param_names)
+        if a is None:
+            return np.zeros((0, 0))
+        p = len(a.param_names)
+        cov = np.zeros((len(self.calibration_names),) * 2)
+        if a.covariance_deg2 is not None and p:
+            cov[:p, :p] = np.where(np.isfinite(a.covariance_deg2), a.covariance_deg2, 0.0)
+        if self.pointing:
+            cov[p:, p:] = np.diag(np.square(a.camera_pointing_sigma_deg))
+        return cov
+
+
+def central_difference(pose_of: Callable[[float], np.ndarray]) -> np.ndarray:
+    """d(θi, θr, Δφ)/d parameter (N, 3) from ``pose_of(step_deg)``: the poses (N, 3) with the
+    parameter moved by ``step_deg`` (central differences of :data:`STEP_DEG`, Δφ wrapped)."""
+    d = pose_of(STEP_DEG) - pose_of(-STEP_DEG)
+    d[:, 2] = wrap_deg_array(d[:, 2])
+    return d / (2 * STEP_DEG)
 
 
 def pose_jacobians(kin: Kinematics, joints: np.ndarray) -> np.ndarray:
-    """d(θi, θr, Δφ)/d joint (N, 3, J) at joints (N, J), central differences."""
-    out = np.empty((len(joints), 3, joints.shape[1]))
-    for j in range(joints.shape[1]):
-        up, down = joints.copy(), joints.copy()
-        up[:, j] += STEP_DEG
-        down[:, j] -= STEP_DEG
-        d = kin.poses_array(up) - kin.poses_array(down)
-        d[:, 2] = wrap_deg_array(d[:, 2])
-        out[:, :, j] = d / (2 * STEP_DEG)
-    return out
+    """d(θi, θr, Δφ)/d joint (N, 3, J) at joints (N, J)."""
+
+    def moved(j: int) -> Callable[[float], np.ndarray]:
+        return lambda step: kin.poses_array(joints + step * np.eye(joints.shape[1])[j])
+
+    return np.stack([central_difference(moved(j)) for j in range(joints.shape[1])], axis=2)
 
 
 def calibration_jacobians(base: Kinematics, alignment: Alignment, joints: np.ndarray
                           ) -> np.ndarray:
     """d(θi, θr, Δφ)/d calibration parameter (N, 3, P) at joints (N, J)."""
-    out = np.empty((len(joints), 3, len(alignment.param_names)))
-    for k, name in enumerate(alignment.param_names):
-        up = CalibratedKinematics(base, alignment.shifted(name, STEP_DEG)).poses_array(joints)
-        down = CalibratedKinematics(base, alignment.shifted(name, -STEP_DEG)).poses_array(joints)
-        d = up - down
-        d[:, 2] = wrap_deg_array(d[:, 2])
-        out[:, :, k] = d / (2 * STEP_DEG)
+
+    def moved(name: str) -> Callable[[float], np.ndarray]:
+        return lambda step: CalibratedKinematics(
+            base, alignment.shifted(name, step)).poses_array(joints)
+
+    return np.stack([central_difference(moved(n)) for n in alignment.param_names], axis=2)
+
+
+def folded_jacobians(jac: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Jacobians (N, 3, K) of (θi, θr, Δφ) as those of (θi, θr, |Δφ|), the local models'
+    coordinates, at poses (N, 3); the azimuth of a direction at the normal does not matter
+    (its row is 0 where θi or θr is below 1°)."""
+    out = np.array(jac, float)
+    out[:, 2, :] *= np.where(wrap_deg_array(poses[:, 2]) < 0, -1.0, 1.0)[:, None]
+    out[np.minimum(poses[:, 0], poses[:, 1]) < 1.0, 2, :] = 0.0
     return out
 
 
@@ -139,87 +185,247 @@ def _augmented(poses: np.ndarray, log_f: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.vstack(rows), np.vstack(values)
 
 
+def _pairs(dim: int) -> list[tuple[int, int]]:
+    """The cross terms of a quadratic in ``dim`` coordinates: (0, 1), (0, 2), (1, 2), …"""
+    return [(i, j) for i in range(dim) for j in range(i + 1, dim)]
+
+
 def _quadratic_design(d: np.ndarray) -> np.ndarray:
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    return np.column_stack([np.ones_like(x), x, y, z, x * x / 2, y * y / 2, z * z / 2,
-                            x * y, x * z, y * z])
+    """Columns 1, each x, each x²/2, each cross product (:func:`_pairs`) of offsets (n, D)."""
+    dim = d.shape[1]
+    return np.column_stack([np.ones(len(d)), d, d * d / 2,
+                            *(d[:, i] * d[:, j] for i, j in _pairs(dim))])
 
 
-def _unpack(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gradient (C, 3) and Hessian (C, 3, 3) of a fitted quadratic (coef (10, C))."""
-    g = coef[1:4].T
-    h = np.empty((coef.shape[1], 3, 3))
-    h[:, 0, 0], h[:, 1, 1], h[:, 2, 2] = coef[4], coef[5], coef[6]
-    h[:, 0, 1] = h[:, 1, 0] = coef[7]
-    h[:, 0, 2] = h[:, 2, 0] = coef[8]
-    h[:, 1, 2] = h[:, 2, 1] = coef[9]
+def _unpack(coef: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (N, C, D) and Hessians (N, C, D, D) of fitted quadratics (coef (N, Q, C) in
+    :func:`_quadratic_design`'s order)."""
+    g = coef[:, 1:1 + dim].transpose(0, 2, 1)
+    h = np.empty((coef.shape[0], coef.shape[2], dim, dim))
+    for i in range(dim):
+        h[..., i, i] = coef[:, 1 + dim + i]
+    for k, (i, j) in enumerate(_pairs(dim)):
+        h[..., i, j] = h[..., j, i] = coef[:, 1 + 2 * dim + k]
     return g, h
 
 
 def local_log_models(poses: np.ndarray, log_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gradient (N, C, 3) and Hessian (N, C, 3, 3) of ln f in (θi, θr, |Δφ|), per degree, at
-    every sample: a weighted quadratic over its neighbours (:func:`_fit`). The neighbourhood
-    (Gaussian weights, out to 2.5 bandwidths) grows until its samples vary in every
-    coordinate (a plan at one θi gets θi from the reciprocal samples); Δφ distances count
-    × √(sin θi sin θr) of the centre."""
+    every sample (:func:`local_models`, its samples with their reciprocals and Δφ mirrors,
+    Δφ distances × √(sin θi sin θr) of the centre: a plan at one θi gets θi from the
+    reciprocal samples)."""
     aug, values = _augmented(poses, log_f)
-    n, c = log_f.shape
-    grads, hessians = np.zeros((n, c, 3)), np.zeros((n, c, 3, 3))
-    for k in range(n):
-        centre = np.array([poses[k, 0], poses[k, 1], abs(wrap_deg_array(poses[k, 2]))])
-        w_phi = float(np.sqrt(max(np.sin(centre[0] * RAD) * np.sin(centre[1] * RAD), 1e-6)))
-        d = (aug - centre) * [1.0, 1.0, w_phi]
-        dist = np.sqrt(np.sum(d * d, axis=1))
-        h = max(float(np.sort(dist)[min(NEIGHBOURS, len(dist) - 1)]), 1e-3)
-        for _ in range(GROWTH_STEPS):
+    centres = np.column_stack([poses[:, 0], poses[:, 1], np.abs(wrap_deg_array(poses[:, 2]))])
+    w_phi = np.sqrt(np.maximum(np.sin(centres[:, 0] * RAD) * np.sin(centres[:, 1] * RAD), 1e-6))
+    return local_models(centres, w_phi, aug, values)
+
+
+def local_models(centres: np.ndarray, w_last: np.ndarray, points: np.ndarray,
+                 values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient (N, C, D) and Hessian (N, C, D, D), per degree, of the values (M, C) known at
+    ``points`` (M, D, deg) at each of N ``centres``: a weighted quadratic over the centre's
+    neighbours (:func:`_fits`). The neighbourhood (Gaussian weights, out to 2.5 bandwidths,
+    the first bandwidth the distance to the :data:`NEIGHBOURS`-th) grows until its points vary
+    in every coordinate; the last coordinate's offsets count × ``w_last`` (N,) ≤ 1 of the
+    centre. A k-d tree offers each centre only the points that can lie in its neighbourhood
+    (:class:`_Candidates`; the result is that of comparing every pair)."""
+    cand = _Candidates.of(points, centres, w_last)
+    first = cand.first_neighbourhoods(SPREAD_FRACTION)
+    grown = []
+    for k in np.flatnonzero(~first.spanned):  # grow the bandwidth
+        h = first.bandwidth[k] * 1.5
+        for _ in range(GROWTH_STEPS - 1):
+            idx, d, dist = cand.within(k, 2.5 * h)
             near = dist <= 2.5 * h
             if np.all(np.ptp(d[near], axis=0) > SPREAD_FRACTION * h):
                 break
             h *= 1.5
-        weight = np.exp(-0.5 * (dist[near] / h) ** 2)
-        g, hess = _fit(d[near], values[near], weight)
-        g[:, 2] *= w_phi
-        hess[:, 2, :] *= w_phi
-        hess[:, :, 2] *= w_phi
-        grads[k], hessians[k] = g, hess
+        grown.append((d[near], idx[near], np.exp(-0.5 * (dist[near] / h) ** 2)))
+    keep = first.near & np.repeat(first.spanned, np.diff(first.start))
+    owner = np.repeat(np.arange(len(centres)), np.diff(first.start))[keep]
+    weight = np.exp(-0.5 * (first.dist[keep] / first.bandwidth[owner]) ** 2)
+    index = np.concatenate([first.index[keep], *(g[1] for g in grown)])
+    order = np.concatenate([np.flatnonzero(first.spanned), np.flatnonzero(~first.spanned)])
+    g_, h_ = _fits(np.concatenate([first.offset[keep], *(g[0] for g in grown)]),
+                   values[index], np.concatenate([weight, *(g[2] for g in grown)]),
+                   np.concatenate([np.bincount(owner, minlength=len(centres))[first.spanned],
+                                   [len(g[1]) for g in grown]]).astype(np.intp))
+    grads, hessians = np.empty_like(g_), np.empty_like(h_)
+    grads[order], hessians[order] = g_, h_
+    w = np.asarray(w_last, float)[:, None]
+    grads[:, :, -1] *= w
+    hessians[:, :, -1, :] *= w[:, :, None]
+    hessians[:, :, :, -1] *= w[:, :, None]
     return grads, hessians
 
 
-def _fit(d: np.ndarray, y: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gradient and Hessian of the weighted quadratic fit at the origin: the least-norm
-    solution, so a term the neighbours cannot fix (a cross term when they lie on lines
-    through the centre) stays 0; linear where not even that; zero with fewer still."""
+@dataclass(frozen=True)
+class _FirstNeighbourhoods:
+    """Every centre's candidates at once (grouped by centre, nearest first), its first
+    bandwidth, and whether the points within 2.5 of it vary in every coordinate."""
+
+    start: np.ndarray
+    index: np.ndarray
+    offset: np.ndarray
+    dist: np.ndarray
+    bandwidth: np.ndarray
+    near: np.ndarray
+    spanned: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    """The points that may lie within a scaled distance of each centre (last offsets count
+    × the centre's ``w_phi`` ≤ 1). Centres are banded by ``w_phi`` (w ∈ (2⁻ᵇ⁻¹, 2⁻ᵇ]); each
+    band's k-d tree holds the points with the last coordinate × the band's least w, so its
+    distances are at most the scaled ones and a ball of the scaled radius holds every point
+    within it.
+    :meth:`first` covers the first bandwidth (the distance to the ``k_nb``-th neighbour, at
+    least 1e-3°) out to 2.5 bandwidths."""
+
+    trees: dict[int, Any]
+    scales: dict[int, np.ndarray]
+    aug: np.ndarray
+    centres: np.ndarray
+    w_phi: np.ndarray
+    band: np.ndarray
+    k_nb: int
+    radius: np.ndarray
+    """Scaled radius (deg) each centre's first candidates cover."""
+    found: list[Any]
+
+    @classmethod
+    def of(cls, aug: np.ndarray, centres: np.ndarray, w_phi: np.ndarray) -> _Candidates:
+        from scipy.spatial import cKDTree  # loaded by the reductions that need it
+
+        w_phi = np.asarray(w_phi, float)
+        band = np.clip(np.floor(-np.log2(w_phi)), 0, 30).astype(int)
+        k_nb = min(NEIGHBOURS, len(aug) - 1)
+        trees, scales, radius, found = {}, {}, np.zeros(len(centres)), [None] * len(centres)
+        for b in np.unique(band):
+            members = np.flatnonzero(band == b)
+            scale = np.ones(centres.shape[1])
+            scale[-1] = w_phi[members].min()
+            trees[int(b)] = tree = cKDTree(aug * scale)
+            scales[int(b)] = scale
+            at = centres[members] * scale
+            kth = np.asarray(tree.query(at, k=k_nb + 1)[0]).reshape(len(members), -1)[:, -1]
+            ratio = w_phi[members] / scale[-1]  # the k-th scaled distance: ≤ ratio × kth
+            radius[members] = 2.5 * np.maximum(ratio * kth, 1e-3)
+            for m, f in zip(members, tree.query_ball_point(at, cls._margin(radius[members]),
+                                                           return_sorted=True), strict=True):
+                found[m] = f
+        return cls(trees, scales, aug, centres, w_phi, band, k_nb, radius, found)
+
+    @staticmethod
+    def _margin(radius: Any) -> Any:
+        return radius * (1.0 + 1e-9) + 1e-9
+
+    def first_neighbourhoods(self, spread: float) -> _FirstNeighbourhoods:
+        """Every centre's first candidates, bandwidth (the ``k_nb``-th distance, at least
+        1e-3°) and whether the points within 2.5 bandwidths span every coordinate by more
+        than ``spread`` × the bandwidth."""
+        n = len(self.centres)
+        counts = np.array([len(f) for f in self.found], dtype=np.intp)
+        owner = np.repeat(np.arange(n), counts)
+        index = np.concatenate([np.asarray(f, dtype=np.intp) for f in self.found])
+        offset = self.aug[index] - self.centres[owner]
+        offset[:, -1] *= self.w_phi[owner]
+        dist = np.sqrt(np.sum(offset * offset, axis=1))
+        order = np.lexsort((dist, owner))
+        index, offset, dist = index[order], offset[order], dist[order]
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        bandwidth = np.maximum(dist[start[:-1] + self.k_nb], 1e-3)
+        near = dist <= 2.5 * np.repeat(bandwidth, counts)
+        high = np.maximum.reduceat(np.where(near[:, None], offset, -np.inf), start[:-1])
+        low = np.minimum.reduceat(np.where(near[:, None], offset, np.inf), start[:-1])
+        spanned = np.all(high - low > spread * bandwidth[:, None], axis=1)
+        return _FirstNeighbourhoods(start, index, offset, dist, bandwidth, near, spanned)
+
+    def within(self, k: int, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The same for the candidates within scaled ``radius`` (deg) of centre k."""
+        b = int(self.band[k])
+        at = self.centres[k] * self.scales[b]
+        found = self.trees[b].query_ball_point(at, self._margin(radius), return_sorted=True)
+        return self._offsets(k, np.asarray(found, dtype=np.intp))
+
+    def _offsets(self, k: int, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        d = self.aug[idx] - self.centres[k]
+        d[:, -1] *= self.w_phi[k]
+        return idx, d, np.sqrt(np.sum(d * d, axis=1))
+
+
+def _fits(d: np.ndarray, y: np.ndarray, weight: np.ndarray, sizes: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (N, C, D) and Hessians (N, C, D, D) at the origin of weighted quadratic fits
+    to N neighbourhoods, given one after the other (``sizes`` (N,) rows each: offsets (n, D),
+    values (n, C), weights (n,)): the least-norm solution, so a term the neighbours cannot
+    fix (a cross term when they lie on lines through the centre) stays 0; linear where not
+    even that; zero with fewer still. Solved in batches (:func:`_lstsq`), each coordinate
+    scaled by its largest offset."""
+    dim, channels = d.shape[1], y.shape[1]
+    quadratic, linear = 1 + 2 * dim + len(_pairs(dim)), 1 + dim
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.intp)
+    coef = np.zeros((len(sizes), quadratic, channels))
+    if not len(sizes):
+        return _unpack(coef, dim)
+    scale = np.maximum(np.maximum.reduceat(np.abs(d), start, axis=0), 1e-6)
     sw = np.sqrt(weight)[:, None]
-    scale = np.maximum(np.max(np.abs(d), axis=0), 1e-6)
-    for cols, need in ((10, 7), (4, 3)):
-        if len(d) < need:
-            continue
-        design = _quadratic_design(d / scale)[:, :cols]
-        coef, _, rank, _ = np.linalg.lstsq(design * sw, y * sw, rcond=1e-8)
-        if rank >= need:
-            full = np.zeros((10, y.shape[1]))
-            full[:cols] = coef
-            g, h = _unpack(full)
-            return g / scale, h / np.outer(scale, scale)
-    return np.zeros((y.shape[1], 3)), np.zeros((y.shape[1], 3, 3))
+    design = _quadratic_design(d / np.repeat(scale, sizes, axis=0)) * sw
+    y = y * sw
+    done = np.zeros(len(sizes), bool)
+    for cols, need in ((quadratic, quadratic - len(_pairs(dim))), (linear, dim)):
+        todo = np.flatnonzero(~done & (sizes >= need))
+        todo = todo[np.argsort(sizes[todo], kind="stable")]
+        for chunk in np.array_split(todo, max(1, -(-len(todo) // FIT_BATCH))):
+            if not len(chunk):
+                continue
+            n = sizes[chunk]
+            local = np.repeat(np.arange(len(chunk)), n)
+            rows = np.repeat(start[chunk] - np.cumsum(n) + n, n) + np.arange(n.sum())
+            pos = rows - np.repeat(start[chunk], n)
+            a = np.zeros((len(chunk), n.max(), cols))
+            b = np.zeros((len(chunk), n.max(), channels))
+            a[local, pos], b[local, pos] = design[rows, :cols], y[rows]
+            x, rank = _lstsq(a, b)
+            ok = rank >= need
+            coef[chunk[ok], :cols] = x[ok]
+            done[chunk[ok]] = True
+    g, h = _unpack(coef, dim)
+    return g / scale[:, None, :], h / (scale[:, None, :, None] * scale[:, None, None, :])
 
 
-def _with_irradiance(grad: np.ndarray, hess: np.ndarray, theta_i: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Add ln cos θi_true − ln cos θi (what dividing by the assumed irradiance leaves)."""
+def _lstsq(a: np.ndarray, b: np.ndarray, rcond: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+    """Least-norm least-squares solutions (B, K, C) of a batch a (B, M, K) x = b (B, M, C), and
+    their ranks (B,): numpy's ``lstsq`` rule (singular values ≤ rcond × the largest count as
+    0); zero rows (padding) change nothing."""
+    u, s, vh = np.linalg.svd(a, full_matrices=False)
+    keep = s > rcond * s[:, :1]
+    inv = np.where(keep, 1.0 / np.where(keep, s, 1.0), 0.0)
+    x = np.swapaxes(vh, 1, 2) @ (inv[..., None] * (np.swapaxes(u, 1, 2) @ b))
+    return x, keep.sum(axis=1)
+
+
+def with_irradiance(grad: np.ndarray, hess: np.ndarray, theta_i: np.ndarray, axis: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The local model of ln f (gradient (N, C, D), Hessian (N, C, D, D), per degree) as that
+    of the measured value: plus ln cos θi_true − ln cos θi (what dividing by the assumed
+    irradiance leaves), θi (deg) being coordinate ``axis`` (0 in (θi, θr, |Δφ|))."""
     t = np.tan(theta_i * RAD)
     g, h = grad.copy(), hess.copy()
-    g[:, :, 0] -= t[:, None] * RAD
-    h[:, :, 0, 0] -= ((1.0 + t * t) * RAD**2)[:, None]
+    g[:, :, axis] -= t[:, None] * RAD
+    h[:, :, axis, axis] -= ((1.0 + t * t) * RAD**2)[:, None]
     return g, h
 
 
-def relative_variances(grad: np.ndarray, hess: np.ndarray, theta_i: np.ndarray,
-                       pose_cov: np.ndarray, draws: np.ndarray | None = None) -> np.ndarray:
-    """Relative variance (N, C) of the values for pose errors of covariance (N, 3, 3): first
-    order where adequate, else the Monte Carlo over ``draws`` (N, M, 3) pose errors when
-    given, else the second-order form for Gaussian errors (the mean shift included)."""
-    g, h = _with_irradiance(grad, hess, theta_i)
+def relative_variances(grad: np.ndarray, hess: np.ndarray, pose_cov: np.ndarray,
+                       draws: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+    """Relative variance (N, C) of values whose logarithm has the local model ``grad``
+    (N, C, D), ``hess`` (N, C, D, D) for coordinate errors of covariance (N, D, D): first
+    order where adequate, else the Monte Carlo over ``draws(k)`` (the coordinate errors
+    (len(k), M, D) of samples k) when given, else the second-order form for Gaussian errors
+    (the mean shift included)."""
+    g, h = grad, hess
     first = np.einsum("nci,nij,ncj->nc", g, pose_cov, g)
     hs = np.einsum("ncij,njk->ncik", h, pose_cov)
     bias = 0.5 * np.einsum("ncii->nc", hs)
@@ -228,32 +434,39 @@ def relative_variances(grad: np.ndarray, hess: np.ndarray, theta_i: np.ndarray,
     near = (second + bias**2) > NONLINEAR_FRACTION * first
     if draws is not None and near.any():
         k = np.flatnonzero(np.any(near, axis=1))
-        lin = np.einsum("nci,nmi->ncm", g[k], draws[k])
-        quad = 0.5 * np.einsum("nmi,ncij,nmj->ncm", draws[k], h[k], draws[k])
+        d = draws(k)[:, None]  # (n, 1, M, D)
+        lin = np.matmul(d, g[k][..., None])[..., 0]
+        quad = 0.5 * np.sum(np.matmul(d, h[k]) * d, axis=-1)
         mc = np.mean(np.expm1(np.clip(lin + quad, -50.0, 50.0)) ** 2, axis=2)
         out[k] = np.where(near[k], mc, out[k])
     return out
 
 
 def joint_draws(sources: AngularSources, jac: np.ndarray, seed: int = 0) -> np.ndarray:
-    """Pose errors (N, M, 3) of :data:`MC_DRAWS` fixed draws of the joint errors: backlash ±b/2
-    with equal odds, position noise Gaussian."""
+    """Coordinate errors (N, M, D) of :data:`MC_DRAWS` fixed draws of the joint errors through
+    the Jacobians (N, D, J): backlash ±b/2 with equal odds, position noise Gaussian."""
     rng = np.random.default_rng(seed)
     m, j = MC_DRAWS, len(sources.joint_names)
     signs = rng.choice((-1.0, 1.0), size=(m, j))
     dj = signs * sources.backlash_deg / 2.0 + rng.standard_normal((m, j)) * sources.noise_deg
-    return np.einsum("nij,mj->nmi", jac, dj)
+    return np.swapaxes(np.matmul(jac, dj.T), 1, 2)
 
 
-def source_bias(grad: np.ndarray, hess: np.ndarray, poses: np.ndarray, radius_deg: float
-                ) -> np.ndarray:
-    """Relative bias (N, C) of averaging over the lamp's disc: ½ tr(H Σ) + ½ Gᵀ Σ G with Σ
-    the disc's spread in (θi, |Δφ|): ρ²/4 and ρ²/(4 sin² θi) (deg²)."""
-    g, h = _with_irradiance(grad, hess, poses[:, 0])
+def disc_covariance(poses: np.ndarray, radius_deg: float) -> np.ndarray:
+    """Covariance (N, 3, 3), deg², of the light's direction over the lamp's disc in
+    (θi, θr, |Δφ|): ρ²/4 in θi and ρ²/(4 sin² θi) in Δφ."""
     var = radius_deg**2 / 4.0
     sin2 = np.maximum(np.sin(poses[:, 0] * RAD) ** 2, 1e-6)
-    d = np.stack([np.full(len(poses), var), np.zeros(len(poses)), var / sin2], axis=1)
-    return 0.5 * np.einsum("ncii,ni->nc", h, d) + 0.5 * np.einsum("nci,ni,nci->nc", g, d, g)
+    out = np.zeros((len(poses), 3, 3))
+    out[:, 0, 0], out[:, 2, 2] = var, var / sin2
+    return out
+
+
+def source_bias(grad: np.ndarray, hess: np.ndarray, disc_cov: np.ndarray) -> np.ndarray:
+    """Relative bias (N, C) of averaging over the lamp's disc: ½ tr(H Σ) + ½ Gᵀ Σ G with Σ
+    (N, D, D) the disc's covariance in the local model's coordinates."""
+    return 0.5 * np.einsum("ncij,nji->nc", hess, disc_cov) \
+        + 0.5 * np.einsum("nci,nij,ncj->nc", grad, disc_cov, grad)
 
 
 @dataclass(frozen=True)
@@ -269,34 +482,43 @@ class AngularTerms:
 def angular_terms(sources: AngularSources, kin: Kinematics, base: Kinematics,
                   joints: np.ndarray, poses: np.ndarray, values: np.ndarray) -> AngularTerms:
     """Each sample's angular terms (:class:`AngularTerms`; zeros where the rig states no such
-    error) at read-back joints (N, J), claimed poses (N, 3) and values (N, 3)."""
+    error) at read-back joints (N, J), claimed poses (N, 3) and values (N, 3): the local
+    models from the samples themselves, the Jacobians from the kinematics."""
     poses = np.asarray(poses, float)
     n = len(poses)
-    out = AngularTerms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
     if n == 0 or not (sources.independent or sources.correlated or sources.source):
-        return out
-    log_f = np.log(np.maximum(np.abs(values), 1e-300))
-    grad, hess = local_log_models(poses, log_f)
-    sign = np.where(wrap_deg_array(poses[:, 2]) < 0, -1.0, 1.0)
-    degenerate = np.minimum(poses[:, 0], poses[:, 1]) < 1.0
-    if sources.source:
-        out.source_bias[:] = source_bias(grad, hess, poses, sources.source_radius_deg)
-    if sources.independent:
-        jac = pose_jacobians(kin, joints)
-        jac[:, 2, :] *= sign[:, None]
-        jac[degenerate, 2, :] = 0.0  # the azimuth of a direction at the normal does not matter
-        sigma2 = (sources.backlash_deg / 2.0) ** 2 + sources.noise_deg**2
-        cov = np.einsum("nij,j,nkj->nik", jac, sigma2, jac)
-        out.variance[:] = relative_variances(grad, hess, poses[:, 0], cov,
-                                             joint_draws(sources, jac)) * values**2
+        return AngularTerms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+    grad, hess = with_irradiance(
+        *local_log_models(poses, np.log(np.maximum(np.abs(values), 1e-300))), poses[:, 0])
+    jac = folded_jacobians(pose_jacobians(kin, joints), poses) if sources.independent else None
+    kcal = None
     if sources.correlated:
-        a = sources.alignment
-        assert a is not None and a.covariance_deg2 is not None
-        c = np.where(np.isfinite(a.covariance_deg2), a.covariance_deg2, 0.0)
-        kcal = calibration_jacobians(base, a, joints)
-        kcal[:, 2, :] *= sign[:, None]
-        kcal[degenerate, 2, :] = 0.0
-        cov = np.einsum("nip,pq,njq->nij", kcal, c, kcal)
-        out.calibration[:] = np.sqrt(relative_variances(grad, hess, poses[:, 0], cov)) \
-            * np.abs(values)
+        assert sources.alignment is not None
+        kcal = folded_jacobians(calibration_jacobians(base, sources.alignment, joints), poses)
+    disc = disc_covariance(poses, sources.source_radius_deg) if sources.source else None
+    return terms_at(sources, grad, hess, values, jac, kcal, disc)
+
+
+def terms_at(sources: AngularSources, grad: np.ndarray, hess: np.ndarray, values: np.ndarray,
+             joint_jac: np.ndarray | None, calibration_jac: np.ndarray | None,
+             disc_cov: np.ndarray | None) -> AngularTerms:
+    """The angular terms of N samples (or groups of samples that share their errors) with
+    values (N, 3), given the local model of the logarithm of the measured value there
+    (gradient (N, C, D), Hessian (N, C, D, D) in D coordinates, the assumed irradiance
+    included: :func:`with_irradiance`), the Jacobians of those coordinates with respect to the
+    joints (N, D, J) and to :attr:`AngularSources.calibration_names` (N, D, P), and the lamp
+    disc's covariance in them (N, D, D); a term whose Jacobian or covariance is None is 0."""
+    n = len(values)
+    out = AngularTerms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+    if disc_cov is not None:
+        out.source_bias[:] = source_bias(grad, hess, disc_cov)
+    if joint_jac is not None:
+        sigma2 = (sources.backlash_deg / 2.0) ** 2 + sources.noise_deg**2
+        cov = np.einsum("nij,j,nkj->nik", joint_jac, sigma2, joint_jac)
+        out.variance[:] = relative_variances(
+            grad, hess, cov, lambda k: joint_draws(sources, joint_jac[k])) * values**2
+    if calibration_jac is not None:
+        cov = np.einsum("nip,pq,njq->nij", calibration_jac, sources.calibration_covariance(),
+                        calibration_jac)
+        out.calibration[:] = np.sqrt(relative_variances(grad, hess, cov)) * np.abs(values)
     return out

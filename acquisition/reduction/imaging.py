@@ -34,6 +34,8 @@ import numpy as np
 from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
 from drivers.errors import ConfigError
 
+Pixels = tuple[np.ndarray, np.ndarray]
+"""Pixel indices (rows, columns), superpixels, each of length K."""
 ZENITH_TOLERANCE = 1e-9
 """|sin θ| below which the camera counts as exactly at the zenith (up = −x)."""
 
@@ -99,13 +101,19 @@ class PinholeCamera:
         r /= np.linalg.norm(r)
         return replace(self, rotation=np.stack([r, np.cross(f, r), f]))
 
-    def ray_directions(self) -> np.ndarray:
-        """Unit ray directions (rows, columns, 3) through every pixel centre, sample frame."""
-        h, w = self.shape
-        x = (np.arange(w, dtype=np.float64) - self.cx) / self.fx
-        y = (np.arange(h, dtype=np.float64) - self.cy) / self.fy
+    def ray_directions(self, pixels: Pixels | None = None) -> np.ndarray:
+        """Unit ray directions (rows, columns, 3) through every pixel centre, sample frame;
+        with ``pixels`` (rows, columns: index arrays of length K), (K, 3) through those."""
         rx, ry, rz = self.rotation
-        d = x[None, :, None] * rx + y[:, None, None] * ry + rz
+        if pixels is not None:
+            x = (np.asarray(pixels[1], dtype=np.float64) - self.cx) / self.fx
+            y = (np.asarray(pixels[0], dtype=np.float64) - self.cy) / self.fy
+            d = x[:, None] * rx + y[:, None] * ry + rz
+        else:
+            h, w = self.shape
+            x = (np.arange(w, dtype=np.float64) - self.cx) / self.fx
+            y = (np.arange(h, dtype=np.float64) - self.cy) / self.fy
+            d = x[None, :, None] * rx + y[:, None, None] * ry + rz
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return d
 
@@ -208,8 +216,8 @@ class PixelGeometry:
     Attributes
     ----------
     mask:
-        (rows, columns) bool: the pixel sees the sample, lit (cos θi > 0) and facing the
-        camera (cos θr > 0).
+        (rows, columns) bool (or (K,) for K given pixels): the pixel sees the sample, lit
+        (cos θi > 0) and facing the camera (cos θr > 0).
     wi, wo:
         (N, 3) unit light and view directions in the local shading frame (normal +z), for the
         ``mask`` pixels in C order.
@@ -238,12 +246,14 @@ def pixel_geometry(
     light_pos: np.ndarray,
     sample: SampleConfig,
     shape: str | None = None,
+    pixels: Pixels | None = None,
 ) -> PixelGeometry:
     """Per-pixel wi, wo (local frame) and cos θi / r² for one camera and point-light position.
 
-    ``shape`` overrides the sample's shape ("flat" for the white-reference plate).
+    ``shape`` overrides the sample's shape ("flat" for the white-reference plate); ``pixels``
+    (rows, columns) restricts it to those pixels (the mask is then theirs, (K,)).
     """
-    hits = intersect(sample, camera.position, camera.ray_directions(), shape)
+    hits = intersect(sample, camera.position, camera.ray_directions(pixels), shape)
     to_light = np.asarray(light_pos, dtype=np.float64) - hits.points
     r2 = np.einsum("ij,ij->i", to_light, to_light)
     wi_world = to_light / np.sqrt(r2)[:, None]
@@ -276,6 +286,7 @@ def frame_geometry(
     pointing_deg: tuple[float, float] = (0.0, 0.0),
     light_pos: np.ndarray | None = None,
     sample: SampleConfig | None = None,
+    pixels: Pixels | None = None,
 ) -> PixelGeometry:
     """:func:`pixel_geometry` for the rig's camera and light at the given arm directions
     (unit vectors in the sample frame, e.g. from ``Kinematics.forward_geometry``).
@@ -283,11 +294,11 @@ def frame_geometry(
     ``pointing_deg``: the camera's optical axis turned towards the image's +x, then +y (deg;
     a calibrated pointing error, :meth:`PinholeCamera.pointed`); ``light_pos``: the light's
     position (m; default ``light_distance_m`` along ``light_dir``); ``sample``: the sample's
-    shape and place (default the rig file's)."""
+    shape and place (default the rig file's); ``pixels``: only those (rows, columns)."""
     camera = PinholeCamera.looking_at_origin(
         camera_intrinsics(rig, shape_superpixels), shape_superpixels, camera_dir,
         rig.camera_distance_m,
     ).pointed(*pointing_deg)
     if light_pos is None:
         light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
-    return pixel_geometry(camera, light_pos, sample or rig.sample, target_shape)
+    return pixel_geometry(camera, light_pos, sample or rig.sample, target_shape, pixels)

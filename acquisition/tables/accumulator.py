@@ -169,6 +169,13 @@ class BinAccumulator:
         self.n_dropped_nan = other.n_dropped_nan
         self.n_dropped_range = other.n_dropped_range
 
+    def scale(self, factor: np.ndarray) -> None:
+        """Multiply every sample of each bin by ``factor`` (n_bins, channels): Σx by it, Σx²
+        by its square."""
+        f = np.asarray(factor, dtype=np.float64).reshape(self.n_bins, self.channels).T
+        self._sum *= f
+        self._sumsq *= f * f
+
     # ------------------------------------------------------------------ statistics
     @property
     def count(self) -> np.ndarray:

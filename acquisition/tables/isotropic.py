@@ -346,6 +346,23 @@ class IsotropicTable(TableStatistics):
         self._unc.set_independent(BINNING_TERM, BINNING_DESCRIPTION, binning_variance_sums(
             self._unc, self._acc.variance(), self._acc.count))
 
+    def set_bin_term(self, name: str, description: str, bin_uncertainty: np.ndarray, *,
+                     correlated: bool = False) -> None:
+        """Add (or replace) a term of the budget known per bin once every sample is in: the
+        standard uncertainty of each bin's mean, ``shape + (3,)``, sr⁻¹
+        (:meth:`~acquisition.tables.uncertainty.UncertaintySums.set_term`)."""
+        if self._unc is None:
+            raise ConfigError("set_bin_term needs a table that tracks uncertainty")
+        self._unc.set_term(name, description, bin_uncertainty, correlated)
+
+    def scale_bins(self, factor: np.ndarray) -> None:
+        """Multiply every sample of each bin by ``factor`` (``shape + (3,)``; NaN: 1): a
+        correction known per bin (the budget's terms are kept as they are)."""
+        f = np.nan_to_num(np.asarray(factor, float).reshape(-1, 3), nan=1.0)
+        self._acc.scale(f)
+        self._stored = None
+        self._stored_scatter = None
+
     @property
     def tracks_uncertainty(self) -> bool:
         """True when the table holds an uncertainty budget (reduced by gonio, or a v2 file)."""

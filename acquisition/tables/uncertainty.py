@@ -50,6 +50,9 @@ class UncertaintySums:
         self._u = {k: np.zeros((n_bins, 3)) for k in self.correlated}
         self._angles = np.zeros((n_bins, 3))
         self._products = np.zeros((n_bins, 6))
+        self._shared: set[str] = set()
+        """Independent terms given per bin (:meth:`set_term`): shared by a bin's samples,
+        so no part of their scatter."""
 
     def add(self, flat_index: np.ndarray, angles_deg: np.ndarray,
             variances: Mapping[str, np.ndarray], uncertainties: Mapping[str, np.ndarray]) -> None:
@@ -99,11 +102,29 @@ class UncertaintySums:
         self.descriptions[name] = description
         self._var[name] = np.asarray(sum_of_variances, float).reshape(self.n_bins, 3).copy()
 
+    def set_term(self, name: str, description: str, bin_uncertainty: np.ndarray,
+                 correlated: bool) -> None:
+        """Add (or replace) a term given as each bin mean's standard uncertainty (n_bins, 3),
+        sr⁻¹ (NaN or empty bins: 0): one that only the bin as a whole has, its samples sharing
+        it (the pixels of one frame share its joint error). An independent one (uncorrelated
+        between bins) counts in no sample's predicted scatter."""
+        u = np.nan_to_num(np.asarray(bin_uncertainty, float).reshape(self.n_bins, 3))
+        n = self._n.astype(float)[:, None]
+        if correlated:
+            if name not in self.correlated:
+                self.correlated = (*self.correlated, name)
+            self._u[name] = u * n
+            self.descriptions[name] = description
+        else:
+            self.set_independent(name, description, (u * n) ** 2)
+            self._shared.add(name)
+
     def copy(self) -> UncertaintySums:
         """An independent copy."""
         new = UncertaintySums(self.n_bins, {k: self.descriptions[k] for k in self.independent},
                               {k: self.descriptions[k] for k in self.correlated})
         new.merge_from(self)
+        new._shared = set(self._shared)
         return new
 
     def terms(self, shape: tuple[int, ...]) -> dict[str, Term]:
@@ -135,8 +156,8 @@ class UncertaintySums:
 
     def predicted_sample_variance(self, exclude: tuple[str, ...] = ()) -> np.ndarray:
         """Mean predicted variance of one sample per flat bin, independent terms (but
-        ``exclude``), (n_bins, 3)."""
-        total = sum((v for k, v in self._var.items() if k not in exclude),
+        ``exclude`` and those the bin's samples share, :meth:`set_term`), (n_bins, 3)."""
+        total = sum((v for k, v in self._var.items() if k not in exclude and k not in self._shared),
                     np.zeros((self.n_bins, 3)))
         with np.errstate(invalid="ignore", divide="ignore"):
             return total / self._n[:, None]

@@ -21,7 +21,7 @@ from acquisition.geometry.halfdiff import (
     merl_flat_index,
     merl_flat_index_rad,
 )
-from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable, kernels
+from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable, exact_kernels, kernels
 from acquisition.tables.backend import ENV_VAR, resolve_backend
 from drivers.errors import ConfigError
 from simulators.materials import directions_from_angles
@@ -248,7 +248,7 @@ def test_each_kernel_compiles_once_whatever_the_input_layout():
     table.add_halfdiff(list(th[:, 0]), 10, 20.0, vals32.T.copy().T)
     table.add_flat(np.arange(64, dtype=np.int32), vals32[:, :3])
     assert table.n_samples == 192
-    for kernel in (kernels.merl_add_halfdiff_deg, kernels.accumulate_flat):
+    for kernel in (kernels.merl_add_halfdiff_deg, exact_kernels.add_flat):
         assert len(kernel.signatures) == 1, kernel.signatures
 
 

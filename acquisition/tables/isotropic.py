@@ -241,17 +241,9 @@ class IsotropicTable(TableStatistics):
             self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
         if self.backend == "numpy":
             return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)
-        return self._acc.add_with(
-            kernels().iso_add,
-            ti,
-            tr,
-            dp,
-            rgb,
-            self.theta_i_edges,
-            self.theta_r_edges,
-            self.delta_phi_edges,
-            bool(self.fold_delta_phi),
-        )
+        params = (self.theta_i_edges, self.theta_r_edges, self.delta_phi_edges,
+                  bool(self.fold_delta_phi))
+        return self._acc.add_with(kernels().iso_add, (ti, tr, dp), rgb, params)
 
     def track_uncertainty(self, independent: Mapping[str, str],
                           correlated: Mapping[str, str]) -> None:

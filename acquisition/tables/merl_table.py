@@ -71,7 +71,7 @@ class MerlTable(TableStatistics):
         wi, wo = _as_vectors(wi, wo)
         rgb = _as_rgb(rgb, wi.shape[0])
         if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_vectors, wi, wo, rgb)
+            return self._acc.add_with(kernels().merl_add_vectors, (wi, wo), rgb)
         return self._add_chunked(rgb, lambda a, b, flat: _index_vectors(wi[a:b], wo[a:b], flat))
 
     def add_angles(
@@ -91,7 +91,7 @@ class MerlTable(TableStatistics):
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         rgb = _as_rgb(rgb, ti.size)
         if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_angles, ti, tr, dp, rgb)
+            return self._acc.add_with(kernels().merl_add_angles, (ti, tr, dp), rgb)
         return self._add_chunked(
             rgb, lambda a, b, flat: _index_angles(ti[a:b], tr[a:b], dp[a:b], flat)
         )
@@ -113,7 +113,7 @@ class MerlTable(TableStatistics):
         th, td, pd = as_flat_float64(theta_h_deg, theta_d_deg, phi_d_deg)
         rgb = _as_rgb(rgb, th.size)
         if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_halfdiff_deg, th, td, pd, rgb)
+            return self._acc.add_with(kernels().merl_add_halfdiff_deg, (th, td, pd), rgb)
         return self._add_chunked(
             rgb, lambda a, b, flat: _index_halfdiff(th[a:b], td[a:b], pd[a:b], flat)
         )

@@ -56,6 +56,7 @@ from acquisition.tables.accumulator import (
 from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.backend import kernels
 from acquisition.tables.merl_table import MerlTable
+from acquisition.tables.partial import BudgetPartial, PartialError, TablePartial
 from acquisition.tables.uncertainty import (
     BINNING_DESCRIPTION,
     BINNING_TERM,
@@ -252,7 +253,8 @@ class IsotropicTable(TableStatistics):
         (:mod:`acquisition.tables.uncertainty`). Call before the first :meth:`add`."""
         if self.n_samples:
             raise ConfigError("track_uncertainty must be called before samples are added")
-        self._unc = UncertaintySums(int(np.prod(self.shape)), independent, correlated)
+        self._unc = UncertaintySums(int(np.prod(self.shape)), independent, correlated,
+                                    backend=self.backend)
 
     def _add_uncertainty(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, rgb: np.ndarray,
                          at: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
@@ -282,6 +284,54 @@ class IsotropicTable(TableStatistics):
 
     def __add__(self, other: IsotropicTable) -> IsotropicTable:
         return self.merge(other)
+
+    # ------------------------------------------------------------------ partials
+    @property
+    def grid(self) -> dict[str, Any]:
+        """The bins: edges (degrees) and whether Δφ is folded."""
+        return {"theta_i_edges": self.theta_i_edges, "theta_r_edges": self.theta_r_edges,
+                "delta_phi_edges": self.delta_phi_edges,
+                "fold_delta_phi": bool(self.fold_delta_phi)}
+
+    def _budget_terms(self) -> tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]]:
+        """(independent, correlated) (name, description) pairs summed per sample."""
+        u = self._unc
+        if u is None:
+            return (), ()
+        return (tuple((k, u.descriptions[k]) for k in u.independent if k not in u._final),
+                tuple((k, u.descriptions[k]) for k in u.correlated))
+
+    def partial(self) -> TablePartial:
+        """This table's exact sums (and its budget's, terms set at the end excepted): merged
+        with other partials of the same grid, then :meth:`merge_partial` into a table, they
+        give the table of all their samples, bit for bit."""
+        budget = None
+        if self._unc is not None:
+            budget = BudgetPartial(*self._budget_terms(), self._unc.partial())
+        return TablePartial("isotropic", self._acc.partial(),
+                            (self.n_dropped_nan, self.n_dropped_range), self.grid, budget)
+
+    def merge_partial(self, part: TablePartial) -> None:
+        """Add a partial table's sums (same grid; its budget's terms those this table tracks,
+        or it tracks none and has no sample yet)."""
+        same_grid = all(np.array_equal(np.asarray(v), np.asarray(part.grid.get(k)))
+                        for k, v in self.grid.items())
+        if part.kind != "isotropic" or not same_grid:
+            raise PartialError(f"cannot merge a {part.kind} partial table of another grid into "
+                               "this isotropic table: bin both with the same edges")
+        budget = part.budget
+        if budget is not None and self._unc is None and not self.n_samples:
+            self.track_uncertainty(dict(budget.independent), dict(budget.correlated))
+        theirs = () if budget is None else (budget.independent, budget.correlated)
+        ours = () if self._unc is None else self._budget_terms()
+        if theirs != ours:
+            raise PartialError("cannot merge a partial table whose uncertainty terms differ "
+                               "from this table's")
+        self._stored = None
+        self._stored_scatter = None
+        self._acc.merge_partial(part.values, part.dropped)
+        if budget is not None and self._unc is not None:
+            self._unc.merge_partial(budget.sums)
 
     def fold_reciprocity(self) -> IsotropicTable:
         """New table pooling bins (θi, θr, Δφ) and (θr, θi, −Δφ) (Helmholtz reciprocity).

@@ -26,6 +26,7 @@ from acquisition.tables.accumulator import (
 )
 from acquisition.tables.angles import as_flat_float64
 from acquisition.tables.backend import kernels
+from acquisition.tables.partial import PartialError, TablePartial
 from drivers.errors import ConfigError
 
 CHUNK = 1 << 16
@@ -185,6 +186,16 @@ class MerlTable(TableStatistics):
 
     def __add__(self, other: MerlTable) -> MerlTable:
         return self.merge(other)
+
+    def partial(self) -> TablePartial:
+        """This table's exact sums (a partial table: see :mod:`acquisition.tables.partial`)."""
+        return TablePartial("merl", self._acc.partial(), (self.n_dropped_nan, self.n_dropped_range))
+
+    def merge_partial(self, part: TablePartial) -> None:
+        """Add a partial MERL table's sums."""
+        if part.kind != "merl":
+            raise PartialError(f"cannot merge a {part.kind} partial table into a MERL table")
+        self._acc.merge_partial(part.values, part.dropped)
 
     def fold_mirror_symmetry(self) -> MerlTable:
         """New table pooling φd bins k and 179 − k (bilateral symmetry of isotropic BRDFs).

@@ -196,7 +196,10 @@ class BinAccumulator:
     @property
     def _count(self) -> np.ndarray:
         """Samples per flat bin, int64 (n_bins,)."""
-        return self._sums.dense()[0]
+        bins, n, _ = self._sums.touched()
+        out = np.zeros(self.n_bins, np.int64)
+        out[bins] = n
+        return out
 
     @property
     def _sum(self) -> np.ndarray:
@@ -211,26 +214,31 @@ class BinAccumulator:
     @property
     def count(self) -> np.ndarray:
         """Samples per bin, int64, ``shape``."""
-        return self._count.reshape(self.shape).copy()
+        return self._count.reshape(self.shape)
 
     @property
     def sum(self) -> np.ndarray:
         """Σx per bin, float64, ``shape + (channels,)``."""
-        return np.moveaxis(self._sum, 0, -1).reshape(*self.shape, self.channels).copy()
+        return self._spread(lambda n, s: s[: self.channels], 0.0)
 
     @property
     def sum_of_squares(self) -> np.ndarray:
         """Σx² per bin, float64, ``shape + (channels,)``."""
-        return np.moveaxis(self._sumsq, 0, -1).reshape(*self.shape, self.channels).copy()
+        return self._spread(lambda n, s: s[self.channels:], 0.0)
+
+    def _spread(self, per_bin: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                empty: float) -> np.ndarray:
+        """``per_bin(count (u,), sums (2·channels, u))`` → (channels, u) over the touched bins,
+        spread over ``shape + (channels,)`` with ``empty`` elsewhere (no grid-sized sums)."""
+        bins, n, sums = self._sums.touched()
+        out = np.full((self.n_bins, self.channels), empty)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[bins] = per_bin(n.astype(np.float64), sums).T
+        return out.reshape(*self.shape, self.channels)
 
     def mean(self) -> np.ndarray:
         """Mean per bin and channel, ``shape + (channels,)``; NaN where the bin is empty."""
-        count = self._count
-        n = count.astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = self._sum / n
-        m[:, count == 0] = np.nan
-        return np.moveaxis(m, 0, -1).reshape(*self.shape, self.channels)
+        return self._spread(lambda n, s: s[: self.channels] / n, np.nan)
 
     def variance(self) -> np.ndarray:
         """Unbiased sample variance (ddof = 1) per bin; NaN where count < 2.
@@ -238,14 +246,14 @@ class BinAccumulator:
         Computed as (Σx² − (Σx)²/n) / (n − 1) from the rounded sums, clipped at 0 against
         rounding.
         """
-        count = self._count
-        n = count.astype(np.float64)
-        s = self._sum
-        with np.errstate(invalid="ignore", divide="ignore"):
-            v = (self._sumsq - s * s / n) / (n - 1.0)
-        np.maximum(v, 0.0, out=v)
-        v[:, count < 2] = np.nan
-        return np.moveaxis(v, 0, -1).reshape(*self.shape, self.channels)
+        c = self.channels
+
+        def var(n: np.ndarray, s: np.ndarray) -> np.ndarray:
+            v = np.maximum((s[c:] - s[:c] * s[:c] / n) / (n - 1.0), 0.0)
+            v[:, n < 2] = np.nan
+            return v
+
+        return self._spread(var, np.nan)
 
     @classmethod
     def from_statistics(

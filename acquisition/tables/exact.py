@@ -101,7 +101,7 @@ class ExactSums:
         self.limbs = np.zeros((cap, self.n_sums, LIMBS), np.int64)
         self.used = np.zeros(1, np.int64)
         self._version = 0
-        self._dense: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._dense: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ storage
     @property
@@ -220,20 +220,28 @@ class ExactSums:
         return new
 
     # ------------------------------------------------------------------ reading
-    def dense(self) -> tuple[np.ndarray, np.ndarray]:
-        """(count (n_bins,) int64, sums (n_sums, n_bins) float64): each sum rounded once to
-        the nearest float64; 0 where a bin is empty. Cached until the next change."""
+    def touched(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bins (u,), count (u,), sums (n_sums, u) float64) of the u bins holding samples,
+        in no particular order: each sum rounded once to the nearest float64. Cached until the
+        next change (its size follows the bins touched, not the grid)."""
         if self._dense is not None and self._dense[0] == self._version:
-            return self._dense[1], self._dense[2]
+            return self._dense[1], self._dense[2], self._dense[3]
         u = self.n_used
-        count = np.zeros(self.n_bins, np.int64)
-        sums = np.zeros((self.n_sums, self.n_bins), np.float64)
-        bins = self.rows[:u]
-        count[bins] = self.count[:u]
+        sums = np.empty((self.n_sums, u), np.float64)
         for a in range(0, u, ROWS_PER_PASS):
             b = min(a + ROWS_PER_PASS, u)
-            sums[:, bins[a:b]] = to_float(self.limbs[a:b]).T
-        self._dense = (self._version, count, sums)
+            sums[:, a:b] = to_float(self.limbs[a:b]).T
+        self._dense = (self._version, self.rows[:u].copy(), self.count[:u].copy(), sums)
+        return self._dense[1], self._dense[2], self._dense[3]
+
+    def dense(self) -> tuple[np.ndarray, np.ndarray]:
+        """(count (n_bins,) int64, sums (n_sums, n_bins) float64): :meth:`touched` spread over
+        the grid, 0 where a bin is empty."""
+        bins, n, values = self.touched()
+        count = np.zeros(self.n_bins, np.int64)
+        sums = np.zeros((self.n_sums, self.n_bins), np.float64)
+        count[bins] = n
+        sums[:, bins] = values
         return count, sums
 
     def dense_limbs(self) -> tuple[np.ndarray, np.ndarray]:

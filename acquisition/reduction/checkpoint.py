@@ -27,12 +27,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.session.folder import SessionFolder
 from acquisition.tables.partial import ReductionPartial, TablePartial, load_partial, save_partial
 from calibration.bundle import CalibrationBundle
 
-CHECKPOINT_EVERY = 10
-"""Frames binned between two checkpoints (``gonio reduce --checkpoint-every``)."""
 SUFFIX = ".checkpoint.h5"
 
 

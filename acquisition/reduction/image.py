@@ -52,8 +52,9 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
 from acquisition.geometry.kinematics import poses_from_directions
+from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
-from acquisition.reduction.checkpoint import CHECKPOINT_EVERY, Checkpointed, reduction_key
+from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
 from acquisition.reduction.point import (
     UNCERTAINTY_TERMS,

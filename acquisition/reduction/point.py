@@ -60,6 +60,7 @@ from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import nominal_noise_model
 from acquisition.geometry.kinematics import Pose
+from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
     CALIBRATION_TERM,
@@ -245,6 +246,8 @@ def reduce_session(
     bundle: str | Path | None = None,
     reference_axis: str = "step",
     geometry: bool = True,
+    checkpoint: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
 ) -> Reduction:
     """Linearize every captured frame of a session and bin it into its plan's table.
 
@@ -263,6 +266,10 @@ def reduce_session(
     geometry:
         Apply the bundle's geometric calibration (default); False reduces with the rig
         file's geometry as if the bundle had none (to see what the calibration changes).
+    checkpoint, checkpoint_every:
+        An image-based session's checkpoint (:mod:`acquisition.reduction.checkpoint`); a
+        point session reads every frame before it bins (the angular budget terms need all
+        samples), so it takes none.
     """
     if reference_axis not in ("step", "time"):
         raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
@@ -273,7 +280,8 @@ def reduce_session(
     if rig.sample.image_based:
         from acquisition.reduction.image import reduce_image_session  # imports reduce: load lazily
 
-        return reduce_image_session(folder, progress, bundle=bundle)
+        return reduce_image_session(folder, progress, bundle=bundle, checkpoint=checkpoint,
+                                    checkpoint_every=checkpoint_every)
     geo = SampleGeometry.of(rig, cal, calibrated=geometry)
     records, complete = _done_records(folder)
     frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),

@@ -316,6 +316,46 @@ class ImageReducer:
         table.track_uncertainty(*UNCERTAINTY_TERMS)
         return table, MerlTable(provenance)
 
+    def tables(self) -> tuple[IsotropicTable, MerlTable]:
+        """:meth:`new_tables` with the session's provenance (and the noise model's source)."""
+        rig, cal = self.rig, self.cal
+        provenance = session_provenance(self.folder, rig, self.folder.plan(), image_based=True,
+                                        sample_shape=rig.sample.shape)
+        if cal is not None:
+            provenance["calibration_bundle"] = str(cal.path.resolve())
+        table, merl = self.new_tables(provenance)
+        table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+        return table, merl
+
+    def finish(self, table: IsotropicTable, merl: MerlTable, done: ReductionPartial,
+               t0: float, merl_path: str | Path | None = None, resumed: int = 0
+               ) -> ImageReduction:
+        """The reduction of the frames ``done`` holds, binned in ``table`` and ``merl``: the
+        white reference's drift in their provenance, the budget's binning term, the MERL file
+        (``merl_path``)."""
+        drift = self.drift_pct
+        for t in (table, merl):
+            t.provenance["reference_drift_pct"] = drift
+        table.add_binning_term()
+        if merl_path is not None:
+            write_merl(merl_path, merl)
+        return ImageReduction(table=table, frames=len(done.steps), references=self.n_references,
+                              drift_pct=drift, seconds=time.monotonic() - t0,
+                              bundle=None if self.cal is None else self.cal.path, merl=merl,
+                              samples=done.samples, resumed_frames=resumed)
+
+    def reduction(self, partial: ReductionPartial, merl_path: str | Path | None = None
+                  ) -> ImageReduction:
+        """The reduction a (merged) partial of this session's frames finishes into: the same
+        tables as :func:`reduce_image_session` of those frames, bit for bit."""
+        if partial.key != self.key:
+            raise SessionError("this partial belongs to another reduction (session, calibration "
+                               "or options differ): reduce its frames again")
+        table, merl = self.tables()
+        table.merge_partial(partial.tables["isotropic"])
+        merl.merge_partial(partial.tables["merl"])
+        return self.finish(table, merl, partial, time.monotonic(), merl_path)
+
     def partial(self, frames: Iterable[list[StepRecord]]) -> ReductionPartial:
         """The partial tables of ``frames`` (rows of :attr:`frames`)."""
         table, merl = self.new_tables()
@@ -406,16 +446,10 @@ def reduce_image_session(
     """
     t0 = time.monotonic()
     reducer = ImageReducer.open(session_dir, bundle, min_cos)
-    folder, rig, cal = reducer.folder, reducer.rig, reducer.cal
-    provenance = session_provenance(folder, rig, folder.plan(), image_based=True,
-                                    sample_shape=rig.sample.shape)
-    if cal is not None:
-        provenance["calibration_bundle"] = str(cal.path.resolve())
-    table, merl = reducer.new_tables(provenance)
-    table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+    table, merl = reducer.tables()
     frames = reducer.frames[:max_frames]
     run = Checkpointed(reducer.key, {"isotropic": table, "merl": merl}, checkpoint,
-                       checkpoint_every, inputs=(folder.path,))
+                       checkpoint_every, inputs=(reducer.folder.path,))
     held = run.resume(f[0].step for f in frames)
     for fs in reducer.samples(f for f in frames if f[0].step not in held):
         bin_frames([fs], table, merl, None, 0)
@@ -424,13 +458,4 @@ def reduce_image_session(
             progress(len(run.steps), len(frames))
     reducer.check.raise_if_any()
     run.save()
-    drift = reducer.drift_pct
-    for t in (table, merl):
-        t.provenance["reference_drift_pct"] = drift
-    table.add_binning_term()
-    if merl_path is not None:
-        write_merl(merl_path, merl)
-    return ImageReduction(table=table, frames=len(run.steps), references=reducer.n_references,
-                          drift_pct=drift, seconds=time.monotonic() - t0,
-                          bundle=None if cal is None else cal.path, merl=merl,
-                          samples=run.samples, resumed_frames=run.resumed)
+    return reducer.finish(table, merl, run.partial(), t0, merl_path, resumed=run.resumed)

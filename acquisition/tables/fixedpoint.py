@@ -59,7 +59,7 @@ def check_range(values: np.ndarray, limit: float, what: str, unit: str,
     if largest >= limit:
         raise OutOfRangeError(
             f"{what} {largest:.6g}{unit} is outside the exact accumulator's range "
-            f"(|v| < {limit:.6g}{unit}): check the calibration and the white reference's scale"
+            f"(|v| < {limit:.13g}{unit}): check the calibration and the white reference's scale"
         )
 
 

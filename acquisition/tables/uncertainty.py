@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acquisition.tables.exact import ExactSums, SparseSums
-from acquisition.tables.fixedpoint import check_range
+from acquisition.tables.fixedpoint import VALUE_LIMIT, check_range
 from drivers.errors import ConfigError
 
 ANGLE_LIMIT = 2.0**20
@@ -85,13 +85,13 @@ class UncertaintySums:
         arrays = {k: np.asarray(v, float).reshape(-1, 3) for k, v in
                   {**variances, **uncertainties}.items()}
         angles = np.asarray(angles_deg, float).reshape(-1, 3)
-        check_range(angles, ANGLE_LIMIT, "sample angle", "°")
-        for k, a in arrays.items():
-            check_range(a, 2.0**40, f"uncertainty term {k!r}", "")
         keep = (idx >= 0) & np.all(np.isfinite(angles), 1)
         for a in arrays.values():
             keep &= np.all(np.isfinite(a), axis=1)
         a = angles[keep]
+        check_range(a, ANGLE_LIMIT, "sample angle", "°")
+        for k, v in arrays.items():
+            check_range(v[keep], VALUE_LIMIT, f"uncertainty term {k!r}", "")
         columns = [arrays[k][keep] for k in self._summed]
         values = np.concatenate([*columns, a, a[:, _PAIRS[0]] * a[:, _PAIRS[1]]], axis=1)
         self._sums.add_values(idx[keep], values, "uncertainty sum", "")

@@ -291,6 +291,7 @@ def _assert_bit_identical(a, b, what: object = "") -> None:
     np.testing.assert_array_equal(a.count, b.count, err_msg=str(what))
     np.testing.assert_array_equal(a._acc._sum, b._acc._sum, err_msg=str(what))
     np.testing.assert_array_equal(a._acc._sumsq, b._acc._sumsq, err_msg=str(what))
+    assert a._acc.partial().same_as(b._acc.partial()), what  # the exact sums, limb for limb
     assert (a.n_dropped_nan, a.n_dropped_range) == (b.n_dropped_nan, b.n_dropped_range), what
 
 

@@ -39,6 +39,7 @@ def _assert_same_tables(a, b) -> None:
     np.testing.assert_array_equal(a.count, b.count)
     np.testing.assert_array_equal(a._acc._sum, b._acc._sum)
     np.testing.assert_array_equal(a._acc._sumsq, b._acc._sumsq)
+    assert a._acc.partial().same_as(b._acc.partial())  # the exact sums, limb for limb
     assert (a.n_dropped_nan, a.n_dropped_range) == (b.n_dropped_nan, b.n_dropped_range)
 
 

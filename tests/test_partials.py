@@ -18,6 +18,7 @@ import h5py
 import numpy as np
 import pytest
 from conftest import EXAMPLES
+from test_image_capture import small_rig  # rig-sphere-sim.toml at 300 × 300 px: fast
 
 from acquisition import api
 from acquisition.geometry.kinematics import poses_from_directions
@@ -36,20 +37,6 @@ GONIO = Path(sys.executable).with_name("gonio")
 MATERIAL = "ggx:albedo=0.2,alpha=0.25,f0=0.04"
 
 
-def small_sphere_rig(folder: Path) -> Path:
-    """rig-sphere-sim.toml at 300 × 300 px (150 × 150 superpixels): the same sphere session,
-    fast."""
-    text = (EXAMPLES / "rig-sphere-sim.toml").read_text()
-    for old, new in (("width = 1000", "width = 300"), ("height = 1000", "height = 300"),
-                     ("fx = 7200.0", "fx = 2160.0"), ("fy = 7200.0", "fy = 2160.0"),
-                     ("roi = [200, 200, 300, 300]", "roi = [60, 60, 90, 90]")):
-        assert old in text
-        text = text.replace(old, new)
-    path = folder / "rig-sphere-small.toml"
-    path.write_text(text)
-    return path
-
-
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """plan-quick on rig-sim.toml and plan-sphere on the sphere rig, each with the table a
@@ -58,7 +45,7 @@ def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = {"quick": root / "quick", "sphere": root / "sphere"}
     api.capture(EXAMPLES / "rig-sim.toml", EXAMPLES / "plan-quick.toml", out["quick"],
                 material=MATERIAL, seed=4)
-    api.capture(small_sphere_rig(root), EXAMPLES / "plan-sphere.toml", out["sphere"],
+    api.capture(small_rig(root), EXAMPLES / "plan-sphere.toml", out["sphere"],
                 material=MATERIAL, seed=5)
     for name in ("quick", "sphere"):
         out[f"{name}-table"] = root / f"{name}.h5"

@@ -148,12 +148,15 @@ class UncertaintySums:
         return self._sums.dense()[1][first:first + width].T
 
     def _term(self, name: str) -> np.ndarray:
-        """Σ var or Σ u of a term per flat bin (n_bins, 3)."""
+        """Σ var or Σ u of a term per flat bin (n_bins, 3), read-only (the sums are the
+        store's: add samples to change them)."""
         if name in self._final:
-            return self._final[name]
-        out = self._column(3 * self._summed.index(name), 3)
-        if name in self._nan:
-            out = np.where(self._nan[name], np.nan, out)
+            out = self._final[name].view()
+        else:
+            out = self._column(3 * self._summed.index(name), 3).copy()
+            if name in self._nan:
+                out[self._nan[name]] = np.nan
+        out.flags.writeable = False
         return out
 
     @property

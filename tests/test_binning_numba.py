@@ -233,6 +233,7 @@ def test_isotropic_backends_agree(fold):
     got = np.empty(n, dtype=np.int64)
     t = tables["numba"]
     kernels.iso_flat_index(ti, tr, dp, ei, er, ep, fold, got)
+    np.testing.assert_array_equal(got, tables["numpy"].flat_index(ti, tr, dp))
     np.testing.assert_array_equal(got, t.flat_index(ti, tr, dp))
     _assert_same_tables(tables["numba"], tables["numpy"])
     with pytest.raises(ValueError, match="3 angle samples but 2 RGB"):

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.tables.backend import resolve_backend
-from acquisition.tables.exact import ExactSums, SparseSums
+from acquisition.tables.exact import ExactSums, SparseSums, largest_finite
 from acquisition.tables.fixedpoint import check_range, limbs_first
 from drivers.errors import ConfigError
 
@@ -117,17 +117,21 @@ class BinAccumulator:
         (N, channels) values, ``params`` the table's parameters; arrays are made C-contiguous
         so each kernel compiles once.
         """
-        from acquisition.tables import exact_kernels
-
         contiguous = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a
                       for a in (*inputs, values, *params)]
         vals = contiguous[len(inputs)]
-        self._check_values(vals, exact_kernels.max_finite_abs(vals) if vals.size else 0.0)
+        self._check_values(vals, largest_finite(vals, "numba"))
         tally = np.zeros(4, np.int64)
         self._sums.run_kernel(kernel, tuple(contiguous), vals.shape[0], tally)
         self.n_dropped_nan += int(tally[1])
         self.n_dropped_range += int(tally[2])
         return int(tally[0])
+
+    def check_values(self, values: np.ndarray) -> None:
+        """Raise :class:`~acquisition.tables.fixedpoint.OutOfRangeError` when a finite sample
+        value has |x| ≥ 2^20 (what :meth:`add_flat` and :meth:`add_with` refuse)."""
+        vals = np.ascontiguousarray(values, dtype=np.float64).reshape(-1, self.channels)
+        self._check_values(vals, largest_finite(vals, self.backend))
 
     @staticmethod
     def _check_values(vals: np.ndarray, largest: float | None = None) -> None:

@@ -33,6 +33,7 @@ from acquisition.tables.fixedpoint import (
     OutOfRangeError,
     check_range,
     limbs_first,
+    max_finite_abs,
     normalize,
     to_float,
     to_limbs,
@@ -41,6 +42,18 @@ from drivers.errors import ConfigError
 
 ROWS_PER_PASS = 1 << 16
 """Rows converted to float per pass when reading (bounds the temporaries)."""
+
+
+def largest_finite(values: np.ndarray, backend: str) -> float:
+    """Largest |v| over the finite entries of a 2-D float64 array (0 for none), compiled with
+    the numba backend (one pass, no temporaries)."""
+    if values.size == 0:
+        return 0.0
+    if backend == "numba":
+        from acquisition.tables import exact_kernels
+
+        return float(exact_kernels.max_finite_abs(np.ascontiguousarray(values, np.float64)))
+    return max_finite_abs(values)
 
 
 @dataclass(frozen=True)
@@ -158,15 +171,16 @@ class ExactSums:
                                   "into several tables")
 
     def add_values(self, idx: np.ndarray, values: np.ndarray, what: str = "value",
-                   unit: str = "") -> int:
+                   unit: str = "", checked: bool = False) -> int:
         """Add row ``i`` of ``values`` (N, n_sums) to bin ``idx[i]`` (valid indices, finite
         values: the caller drops the others). Raises :class:`OutOfRangeError`, before any sum
-        changes, for a value with |v| ≥ 2^40. Returns N."""
+        changes, for a value with |v| ≥ 2^40 (unless the caller ``checked``). Returns N."""
         idx = np.ascontiguousarray(idx, dtype=np.int64)
         vals = np.ascontiguousarray(values, dtype=np.float64).reshape(idx.size, self.n_sums)
         if idx.size == 0:
             return 0
-        check_range(vals, VALUE_LIMIT, what, unit)
+        if not checked:
+            check_range(vals, VALUE_LIMIT, what, unit, largest_finite(vals, self.backend))
         if self.backend == "numba":
             from acquisition.tables import exact_kernels
 

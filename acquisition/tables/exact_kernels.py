@@ -266,6 +266,62 @@ def add_sums(idx, vals, slot, rows, count, limbs, used, tally, start):  # pragma
 
 
 @njit(**_JIT)
+def _budget_row(terms, angles, i, x, q):  # pragma: no cover - compiled
+    """A budget's sums of sample ``i`` into x[q …]: its terms, its angles and their six
+    products (uncertainty.UncertaintySums order); False when one is not finite."""
+    k = 0
+    for c in range(terms.shape[1]):
+        x[q + k] = terms[i, c]
+        k += 1
+    a0, a1, a2 = angles[i, 0], angles[i, 1], angles[i, 2]
+    for v in (a0, a1, a2, a0 * a0, a1 * a1, a2 * a2, a0 * a1, a0 * a2, a1 * a2):
+        x[q + k] = v
+        k += 1
+    ok = True
+    for j in range(k):
+        ok = ok and np.isfinite(x[q + j])
+    return ok
+
+
+@njit(**_JIT)
+def budget_largest(idx, terms, angles):  # pragma: no cover - compiled
+    """(largest |term|, largest |angle|) over the samples :func:`add_budget` keeps."""
+    x = np.empty(terms.shape[1] + 9)
+    big_term, big_angle = 0.0, 0.0
+    for i in range(idx.size):
+        if idx[i] >= 0 and _budget_row(terms, angles, i, x, 0):
+            for c in range(terms.shape[1]):
+                big_term = max(big_term, abs(x[c]))
+            for c in range(3):
+                big_angle = max(big_angle, abs(angles[i, c]))
+    return big_term, big_angle
+
+
+@njit(**_JIT)
+def add_budget(idx, terms, angles, slot, rows, count, limbs, used, tally,
+               start):  # pragma: no cover - compiled
+    """Add each sample's budget (its term values, angles and angle products) to bin
+    ``idx[i]`` for i from ``start``; samples with a negative index or a non-finite value are
+    left out. Returns where it stopped (the store needs room)."""
+    k_sums = limbs.shape[1]
+    x = np.empty(BLOCK * k_sums)
+    bins = np.empty(BLOCK, np.int64)
+    f0, f1, f2 = np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums)
+    for a in range(start, idx.size, BLOCK):
+        m = min(BLOCK, idx.size - a)
+        if not _room(m, slot, rows, used):
+            return a
+        n = 0
+        for j in range(m):
+            if idx[a + j] >= 0 and _budget_row(terms, angles, a + j, x, n * k_sums):
+                bins[n] = idx[a + j]
+                n += 1
+        _convert(x, n * k_sums, f0, f1, f2)
+        _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
+    return idx.size
+
+
+@njit(**_JIT)
 def max_finite_abs(vals):  # pragma: no cover - compiled
     """Largest |v| over the finite entries of a 2-D array (0 for none)."""
     largest = 0.0

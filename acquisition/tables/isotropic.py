@@ -194,8 +194,15 @@ class IsotropicTable(TableStatistics):
         delta_phi_deg: np.ndarray | float,
     ) -> np.ndarray:
         """Flat C-order bin index per sample (the class's edge rule); −1 outside the table,
-        −2 for a NaN angle. What :meth:`add` bins, with either backend."""
+        −2 for a NaN angle. What :meth:`add` bins, with this table's backend (both give the
+        same indices)."""
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
+        if self.backend == "numba":
+            out = np.empty(ti.size, np.int64)
+            kernels().iso_flat_index(*map(np.ascontiguousarray, (ti, tr, dp)), self.theta_i_edges,
+                                     self.theta_r_edges, self.delta_phi_edges,
+                                     bool(self.fold_delta_phi), out)
+            return out
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)
         ir = axis_index(tr, self.theta_r_edges)
@@ -239,6 +246,7 @@ class IsotropicTable(TableStatistics):
         self._stored = None
         self._stored_scatter = None
         if self._unc is not None:
+            self._acc.check_values(rgb)  # nothing changes unless everything fits
             self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
         if self.backend == "numpy":
             return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)

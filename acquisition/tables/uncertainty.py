@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acquisition.tables.exact import ExactSums, SparseSums
+from acquisition.tables.exact import ExactSums, SparseSums, largest_finite
 from acquisition.tables.fixedpoint import VALUE_LIMIT, check_range
 from drivers.errors import ConfigError
 
@@ -78,23 +78,43 @@ class UncertaintySums:
         standard uncertainties (N, 3), sr⁻¹. A sample with a non-finite term is dropped.
         """
         idx = np.asarray(flat_index, dtype=np.int64).reshape(-1)
-        summed = set(self._summed)
         if set(variances) != set(self.independent) or set(uncertainties) != set(self.correlated):
             raise ConfigError(f"uncertainty terms {sorted(variances) + sorted(uncertainties)} "
-                              f"do not match {sorted(summed)}")
-        arrays = {k: np.asarray(v, float).reshape(-1, 3) for k, v in
-                  {**variances, **uncertainties}.items()}
-        angles = np.asarray(angles_deg, float).reshape(-1, 3)
-        keep = (idx >= 0) & np.all(np.isfinite(angles), 1)
-        for a in arrays.values():
-            keep &= np.all(np.isfinite(a), axis=1)
-        a = angles[keep]
-        check_range(a, ANGLE_LIMIT, "sample angle", "°")
-        for k, v in arrays.items():
-            check_range(v[keep], VALUE_LIMIT, f"uncertainty term {k!r}", "")
-        columns = [arrays[k][keep] for k in self._summed]
-        values = np.concatenate([*columns, a, a[:, _PAIRS[0]] * a[:, _PAIRS[1]]], axis=1)
-        self._sums.add_values(idx[keep], values, "uncertainty sum", "")
+                              f"do not match {sorted(self._summed)}")
+        terms = {**variances, **uncertainties}
+        t = np.concatenate([np.asarray(terms[k], float).reshape(-1, 3) for k in self._summed],
+                           axis=1)
+        a = np.ascontiguousarray(np.asarray(angles_deg, float).reshape(-1, 3))
+        if self._sums.backend == "numba":
+            self._add_compiled(idx, t, a)
+            return
+        values = np.concatenate([t, a, a[:, _PAIRS[0]] * a[:, _PAIRS[1]]], axis=1)
+        with np.errstate(invalid="ignore"):
+            keep = (idx >= 0) & np.isfinite(values).all(axis=1)
+        values = values[keep]
+        if largest_finite(values, self._sums.backend) >= VALUE_LIMIT:
+            self._range_error(values)
+        self._sums.add_values(idx[keep], values, checked=True)
+
+    def _add_compiled(self, idx: np.ndarray, terms: np.ndarray, angles: np.ndarray) -> None:
+        """numba path of :meth:`add`: one compiled pass builds, checks and adds the sums."""
+        from acquisition.tables import exact_kernels
+
+        big_term, big_angle = exact_kernels.budget_largest(idx, terms, angles)
+        check_range(angles[:0], ANGLE_LIMIT, "sample angle", "°", big_angle)
+        if big_term >= VALUE_LIMIT:
+            keep = (idx >= 0) & np.isfinite(terms).all(axis=1) & np.isfinite(angles).all(axis=1)
+            self._range_error(np.concatenate([terms, angles], axis=1)[keep])
+        self._sums.run_kernel(exact_kernels.add_budget, (idx, terms, angles), idx.size,
+                              np.zeros(4, np.int64))
+
+    def _range_error(self, values: np.ndarray) -> None:
+        """The one-line error naming what is out of range in a batch of sums."""
+        n = 3 * len(self._summed)
+        check_range(values[:, n:n + 3], ANGLE_LIMIT, "sample angle", "°")
+        for k, name in enumerate(self._summed):
+            check_range(values[:, 3 * k:3 * k + 3], VALUE_LIMIT, f"uncertainty term {name!r}", "")
+        check_range(values, VALUE_LIMIT, "uncertainty sum", "")
 
     def partial(self) -> SparseSums:
         """The canonical exact sums (without terms set at the end): a partial budget."""

@@ -250,7 +250,7 @@ def test_each_kernel_compiles_once_whatever_the_input_layout():
     table.add_halfdiff(list(th[:, 0]), 10, 20.0, vals32.T.copy().T)
     table.add_flat(np.arange(64, dtype=np.int32), vals32[:, :3])
     assert table.n_samples == 192
-    for kernel in (kernels.merl_add_halfdiff_deg, exact_kernels.add_flat):
+    for kernel in (kernels.merl_flat_index_deg, exact_kernels.add_flat):
         assert len(kernel.signatures) == 1, kernel.signatures
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -32,6 +31,8 @@ DROP_NAN = -2
 """Flat index marking a sample with a NaN coordinate (dropped, counted in ``n_dropped_nan``)."""
 SAMPLE_LIMIT = 2.0**20
 """Largest |value| (exclusive) of a sample: its square stays below the fixed-point range."""
+CHUNK = 1 << 16
+"""Samples indexed per step by :meth:`BinAccumulator.add_indexed` (buffers stay cache-sized)."""
 
 
 class BinAccumulator:
@@ -68,7 +69,8 @@ class BinAccumulator:
 
     # ------------------------------------------------------------------ accumulation
     def add_flat(
-        self, flat_index: np.ndarray, values: np.ndarray, *, index_valid: bool = False
+        self, flat_index: np.ndarray, values: np.ndarray, *, index_valid: bool = False,
+        checked: bool = False,
     ) -> int:
         """Add samples by flat bin index; returns how many were kept.
 
@@ -80,16 +82,17 @@ class BinAccumulator:
             (N, channels) sample values.
         index_valid
             The caller guarantees every index lies in [0, n_bins) (skips that check).
+        checked
+            The caller has checked the values' range (:meth:`check_values`).
         """
         idx = np.asarray(flat_index).reshape(-1)
         vals = np.asarray(values, dtype=np.float64).reshape(idx.size, self.channels)
         if idx.size == 0:
             return 0
+        if not checked:
+            self.check_values(vals)
         if self.backend == "numba":
-            from acquisition.tables import exact_kernels
-
-            return self.add_with(exact_kernels.add_flat, (np.asarray(idx, np.int64),), vals)
-        self._check_values(vals)
+            return self._add_compiled(np.ascontiguousarray(idx, np.int64), vals)
         if idx.dtype != np.intp:
             idx = idx.astype(np.intp)
         with np.errstate(over="ignore", invalid="ignore"):
@@ -107,22 +110,33 @@ class BinAccumulator:
         self._accumulate(idx[keep], vals[keep])
         return int(np.count_nonzero(keep))
 
-    def add_with(self, kernel: Callable[..., int], inputs: tuple[Any, ...], values: np.ndarray,
-                 params: tuple[Any, ...] = ()) -> int:
-        """Run a compiled binning ``kernel(*inputs, values, *params, <store>, tally, start)``
-        (:mod:`acquisition.tables.kernels`) into this accumulator and record its drops;
-        returns the number of samples kept.
+    def add_indexed(self, values: np.ndarray,
+                    fill: Callable[[int, int, np.ndarray], bool | None]) -> int:
+        """Add (N, channels) ``values`` whose bins a table computes chunk by chunk:
+        ``fill(a, b, flat)`` writes the flat indices of samples [a, b) into ``flat`` (and may
+        say whether all are known valid). Every value is checked first, so an out-of-range one
+        changes nothing; index buffers stay cache-sized (:data:`CHUNK`). Returns the number
+        kept."""
+        vals = np.asarray(values, dtype=np.float64).reshape(-1, self.channels)
+        self.check_values(vals)
+        n = vals.shape[0]
+        buf = np.empty(min(CHUNK, n), dtype=np.int64)
+        kept = 0
+        for a in range(0, n, CHUNK):
+            b = min(a + CHUNK, n)
+            flat = buf[: b - a]
+            valid = bool(fill(a, b, flat))
+            kept += self.add_flat(flat, vals[a:b], index_valid=valid, checked=True)
+        return kept
 
-        ``inputs`` are the per-sample arrays (angles, vectors or indices), ``values`` the
-        (N, channels) values, ``params`` the table's parameters; arrays are made C-contiguous
-        so each kernel compiles once.
-        """
-        contiguous = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a
-                      for a in (*inputs, values, *params)]
-        vals = contiguous[len(inputs)]
-        self._check_values(vals, largest_finite(vals, "numba"))
+    def _add_compiled(self, idx: np.ndarray, vals: np.ndarray) -> int:
+        """numba path of :meth:`add_flat` (:func:`acquisition.tables.exact_kernels.add_flat`);
+        records the drops, returns the number kept."""
+        from acquisition.tables import exact_kernels
+
         tally = np.zeros(4, np.int64)
-        self._sums.run_kernel(kernel, tuple(contiguous), vals.shape[0], tally)
+        self._sums.run_kernel(exact_kernels.add_flat, (idx, np.ascontiguousarray(vals)),
+                              idx.size, tally)
         self.n_dropped_nan += int(tally[1])
         self.n_dropped_range += int(tally[2])
         return int(tally[0])

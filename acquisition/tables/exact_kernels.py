@@ -25,8 +25,17 @@ os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: l
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
-from acquisition.tables.accumulator import DROP_NAN  # noqa: E402
-from acquisition.tables.fixedpoint import CARRY_EVERY, LIMB_BITS, TOP_LIMIT  # noqa: E402
+from acquisition.tables import accumulator, fixedpoint  # noqa: E402
+
+# Compiled code bakes in the globals it reads, and numba's cache is invalidated by a change to
+# this file only: so the layout is written out here, and checked against its definitions.
+LIMB_BITS = 44
+TOP_LIMIT = 1 << 61
+CARRY_EVERY = 1 << 18
+DROP_NAN = -2
+assert (LIMB_BITS, TOP_LIMIT, CARRY_EVERY) == (fixedpoint.LIMB_BITS, fixedpoint.TOP_LIMIT,
+                                               fixedpoint.CARRY_EVERY)
+assert DROP_NAN == accumulator.DROP_NAN
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 _SCALE = float(2**LIMB_BITS)

@@ -53,7 +53,7 @@ from acquisition.tables.accumulator import (
     BinAccumulator,
     TableStatistics,
 )
-from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
+from acquisition.tables.angles import as_flat_float64, contiguous, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.backend import kernels
 from acquisition.tables.merl_table import MerlTable
 from acquisition.tables.partial import BudgetPartial, PartialError, TablePartial
@@ -197,12 +197,21 @@ class IsotropicTable(TableStatistics):
         −2 for a NaN angle. What :meth:`add` bins, with this table's backend (both give the
         same indices)."""
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
+        out = np.empty(ti.size, np.int64)
+        self._index_into(ti, tr, dp, out)
+        return out
+
+    def _index_into(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`flat_index` of flat float64 angles into ``out``, with this table's backend."""
         if self.backend == "numba":
-            out = np.empty(ti.size, np.int64)
-            kernels().iso_flat_index(*map(np.ascontiguousarray, (ti, tr, dp)), self.theta_i_edges,
+            kernels().iso_flat_index(*contiguous(ti, tr, dp), self.theta_i_edges,
                                      self.theta_r_edges, self.delta_phi_edges,
                                      bool(self.fold_delta_phi), out)
-            return out
+        else:
+            out[:] = self._numpy_index(ti, tr, dp)
+
+    def _numpy_index(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray) -> np.ndarray:
+        """The numpy path of :meth:`flat_index`."""
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)
         ir = axis_index(tr, self.theta_r_edges)
@@ -248,11 +257,8 @@ class IsotropicTable(TableStatistics):
         if self._unc is not None:
             self._acc.check_values(rgb)  # nothing changes unless everything fits
             self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
-        if self.backend == "numpy":
-            return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)
-        params = (self.theta_i_edges, self.theta_r_edges, self.delta_phi_edges,
-                  bool(self.fold_delta_phi))
-        return self._acc.add_with(kernels().iso_add, (ti, tr, dp), rgb, params)
+        return self._acc.add_indexed(
+            rgb, lambda a, b, flat: self._index_into(ti[a:b], tr[a:b], dp[a:b], flat))
 
     def track_uncertainty(self, independent: Mapping[str, str],
                           correlated: Mapping[str, str]) -> None:

@@ -1,9 +1,10 @@
-"""Numba kernels for binning: bin index and accumulation fused in one compiled pass.
+"""Numba kernels for binning: the flat bin index of every sample, in one compiled pass.
 
-Each kernel walks the samples in blocks of :data:`BLOCK`: it computes the block's flat bin
-indices into a small buffer (for (θh, θd, φd) given directly, a branch-free loop that LLVM
-vectorises), then adds 1 to the count and x, x² of every channel to the exact fixed-point sums
-(:func:`acquisition.tables.exact_kernels.add_block`).
+The tables compute a chunk's indices here (for (θh, θd, φd) given directly, a branch-free loop
+that LLVM vectorises), then add the chunk to their exact sums
+(:mod:`acquisition.tables.exact_kernels`). The two stay in separate compiled functions on
+purpose: numba's on-disk cache is invalidated by a change to a function's own file only, so a
+kernel that inlined code of another file could run stale machine code after an edit there.
 
 Bins are the reference reader's, bit for bit: the index uses the reference's arithmetic in IEEE
 double, operation for operation as :mod:`acquisition.geometry.halfdiff`, with ``math.sin``/``cos``/
@@ -20,11 +21,6 @@ reader call). Nothing may change that arithmetic, and this module enforces it:
 So the numba and numpy backends give the same bins, the same counts, exact sums and sums of
 squares (each x² rounded once, then held exactly) and the same drop tallies, bit for bit, on any
 x86-64 CPU and whatever the batch split or order.
-
-Every ``*_add*`` kernel takes the store's arrays after its own inputs
-(``slot, rows, count, limbs, used, tally, start``, see :mod:`acquisition.tables.exact_kernels`)
-and returns the sample it stopped at (all of them unless the store filled up); ``tally`` holds
-(kept, NaN, out of range, overflows).
 
 The kernels release the GIL (``nogil``): threads may bin concurrently into *separate* tables
 (merge them afterwards); two threads must never write into the same table at once. Compiled
@@ -45,8 +41,6 @@ from numba import njit  # noqa: E402
 
 from acquisition.geometry.halfdiff import DEG2RAD, PHI_D_BINS, THETA_D_BINS, THETA_H_BINS  # noqa: E402
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE  # noqa: E402
-from acquisition.tables.exact_kernels import BLOCK as EXACT_BLOCK  # noqa: E402
-from acquisition.tables.exact_kernels import add_block  # noqa: E402
 
 if numba.config.USING_SVML:  # pragma: no cover - only with icc_rt and numba imported earlier
     raise ImportError(
@@ -63,11 +57,6 @@ _NP = float(PHI_D_BINS)
 
 # Every kernel: exact IEEE arithmetic (no fast-math); x/0 → inf/NaN rather than an exception.
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
-
-
-# ---------------------------------------------------------------------------- accumulation
-BLOCK = EXACT_BLOCK
-"""Samples indexed per step before they are accumulated (the index buffer stays in L1)."""
 
 
 # ---------------------------------------------------------------------------- MERL indices
@@ -214,52 +203,6 @@ def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def merl_add_halfdiff_deg(th, td, pd, vals, slot, rows, count, limbs, used, tally,
-                          start):  # pragma: no cover - compiled
-    """Bin samples at (θh, θd, φd) in degrees (converted like ``np.radians``, then binned with
-    the reference's arithmetic) into a MERL table from sample ``start``; returns where it
-    stopped (see :mod:`acquisition.tables.exact_kernels`)."""
-    buf = np.empty(BLOCK, dtype=np.int64)
-    for a in range(start, th.size, BLOCK):
-        m = min(BLOCK, th.size - a)
-        _merl_block(th, td, pd, a, buf[:m], _DEG2RAD)
-        if not add_block(buf[:m], vals, a, slot, rows, count, limbs, used, tally):
-            return a
-    return th.size
-
-
-@njit(**_JIT)
-def merl_add_vectors(wi, wo, vals, slot, rows, count, limbs, used, tally,
-                     start):  # pragma: no cover - compiled
-    """Bin samples given light/view vectors (N, 3) from sample ``start``; returns where it
-    stopped."""
-    n = wi.shape[0]
-    buf = np.empty(BLOCK, dtype=np.int64)
-    for a in range(start, n, BLOCK):
-        m = min(BLOCK, n - a)
-        for j in range(m):
-            buf[j] = _merl_flat_vectors(wi, wo, a + j)
-        if not add_block(buf[:m], vals, a, slot, rows, count, limbs, used, tally):
-            return a
-    return n
-
-
-@njit(**_JIT)
-def merl_add_angles(ti, tr, dp, vals, slot, rows, count, limbs, used, tally,
-                    start):  # pragma: no cover - compiled
-    """Bin samples at isotropic (θi, θr, Δφ) in degrees from sample ``start``; returns where
-    it stopped."""
-    buf = np.empty(BLOCK, dtype=np.int64)
-    for a in range(start, ti.size, BLOCK):
-        m = min(BLOCK, ti.size - a)
-        for j in range(m):
-            buf[j] = _merl_flat_angles(ti[a + j], tr[a + j], dp[a + j])
-        if not add_block(buf[:m], vals, a, slot, rows, count, limbs, used, tally):
-            return a
-    return ti.size
-
-
-@njit(**_JIT)
 def merl_flat_index_vectors(wi, wo, out):  # pragma: no cover - compiled
     """Flat MERL index per light/view pair into ``out`` (what :func:`merl_add_vectors` bins)."""
     for i in range(wi.shape[0]):
@@ -316,23 +259,6 @@ def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compil
     if ii < 0 or ir < 0 or ip < 0:
         return DROP_OUT_OF_RANGE
     return (ii * (er.size - 1) + ir) * (ep.size - 1) + ip
-
-
-@njit(**_JIT)
-def iso_add(ti, tr, dp, vals, ei, er, ep, fold, slot, rows, count, limbs, used, tally,
-            start):  # pragma: no cover - compiled
-    """Bin samples at (θi, θr, Δφ) in degrees into an isotropic table with the given edges
-    (Δφ folded into [0, 180] or wrapped from ``ep[0]``) from sample ``start``; returns where
-    it stopped."""
-    first = ep[0]
-    buf = np.empty(BLOCK, dtype=np.int64)
-    for a in range(start, ti.size, BLOCK):
-        m = min(BLOCK, ti.size - a)
-        for j in range(m):
-            buf[j] = _iso_flat(ti[a + j], tr[a + j], dp[a + j], ei, er, ep, fold, first)
-        if not add_block(buf[:m], vals, a, slot, rows, count, limbs, used, tally):
-            return a
-    return ti.size
 
 
 @njit(**_JIT)

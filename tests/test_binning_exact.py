@@ -291,6 +291,7 @@ def _assert_bit_identical(a, b, what: object = "") -> None:
     np.testing.assert_array_equal(a.count, b.count, err_msg=str(what))
     np.testing.assert_array_equal(a._acc._sum, b._acc._sum, err_msg=str(what))
     np.testing.assert_array_equal(a._acc._sumsq, b._acc._sumsq, err_msg=str(what))
+    assert a._acc.partial().same_as(b._acc.partial()), what  # the exact sums, limb for limb
     assert (a.n_dropped_nan, a.n_dropped_range) == (b.n_dropped_nan, b.n_dropped_range), what
 
 
@@ -529,8 +530,10 @@ report = {
     "using_svml": bool(numba.config.USING_SVML),
     "host_fma": "+fma" in ll.get_host_cpu_features().flatten(),
 }
-for name in ("merl_add_angles", "merl_add_vectors", "merl_add_halfdiff_deg"):
-    llvm, asm = listing(getattr(kernels, name))
+import acquisition.tables.exact_kernels as exact_kernels
+for module, name in ((kernels, "merl_flat_index_angles"), (kernels, "merl_flat_index_vectors"),
+                     (kernels, "merl_flat_index_deg"), (exact_kernels, "add_flat")):
+    llvm, asm = listing(getattr(module, name))
     report[name] = {
         "calls": sorted(set(re.findall(r'call [^@]*@"?([\w.]+)', llvm))),
         "fma": len(re.findall(FMA, asm)),
@@ -555,14 +558,17 @@ def test_numba_kernels_call_libm_without_svml_fast_math_or_contraction(tmp_path)
     report = json.loads(done.stdout.splitlines()[-1])
     assert report["env"] == "1" and report["disable_svml"] == 1 and report["using_svml"] is False
     # Scalar libm calls (SVML would show as __svml_* vector calls); the θh index's square root
-    # is the (correctly rounded) sqrt instruction, vectorised in the (θh, θd, φd) kernel.
-    libm = {"merl_add_angles": {"acos", "atan2", "llvm.sin.f64", "llvm.cos.f64", "llvm.sqrt.f64"},
-            "merl_add_vectors": {"acos", "atan2", "llvm.sqrt.f64"}, "merl_add_halfdiff_deg": set()}
+    # is the (correctly rounded) sqrt instruction, vectorised in the (θh, θd, φd) kernel. The
+    # exact accumulation's float → limb conversion (floor, rint) is no less strict.
+    libm = {"merl_flat_index_angles": {"acos", "atan2", "llvm.sin.f64", "llvm.cos.f64"},
+            "merl_flat_index_vectors": {"acos", "atan2"}, "merl_flat_index_deg": set()}
     for name, calls in libm.items():
         kernel = report[name]
         assert calls <= set(kernel["calls"]), (name, kernel["calls"])
         assert any(c.startswith("llvm.sqrt.") for c in kernel["calls"]), (name, kernel["calls"])
         assert (kernel["fma"], kernel["svml"], kernel["flags"]) == (0, 0, []), (name, kernel)
+    exact = report["add_flat"]
+    assert (exact["fma"], exact["svml"], exact["flags"]) == (0, 0, []), exact
     # The checks can see contraction: fast-math code on this CPU does fuse x·y + z.
     assert report["fused"]["flags"]
     if report["host_fma"]:

@@ -21,7 +21,7 @@ from acquisition.geometry.halfdiff import (
     merl_flat_index,
     merl_flat_index_rad,
 )
-from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable, kernels
+from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable, exact_kernels, kernels
 from acquisition.tables.backend import ENV_VAR, resolve_backend
 from drivers.errors import ConfigError
 from simulators.materials import directions_from_angles
@@ -39,6 +39,7 @@ def _assert_same_tables(a, b) -> None:
     np.testing.assert_array_equal(a.count, b.count)
     np.testing.assert_array_equal(a._acc._sum, b._acc._sum)
     np.testing.assert_array_equal(a._acc._sumsq, b._acc._sumsq)
+    assert a._acc.partial().same_as(b._acc.partial())  # the exact sums, limb for limb
     assert (a.n_dropped_nan, a.n_dropped_range) == (b.n_dropped_nan, b.n_dropped_range)
 
 
@@ -232,6 +233,7 @@ def test_isotropic_backends_agree(fold):
     got = np.empty(n, dtype=np.int64)
     t = tables["numba"]
     kernels.iso_flat_index(ti, tr, dp, ei, er, ep, fold, got)
+    np.testing.assert_array_equal(got, tables["numpy"].flat_index(ti, tr, dp))
     np.testing.assert_array_equal(got, t.flat_index(ti, tr, dp))
     _assert_same_tables(tables["numba"], tables["numpy"])
     with pytest.raises(ValueError, match="3 angle samples but 2 RGB"):
@@ -248,7 +250,7 @@ def test_each_kernel_compiles_once_whatever_the_input_layout():
     table.add_halfdiff(list(th[:, 0]), 10, 20.0, vals32.T.copy().T)
     table.add_flat(np.arange(64, dtype=np.int32), vals32[:, :3])
     assert table.n_samples == 192
-    for kernel in (kernels.merl_add_halfdiff_deg, kernels.accumulate_flat):
+    for kernel in (kernels.merl_flat_index_deg, exact_kernels.add_flat):
         assert len(kernel.signatures) == 1, kernel.signatures
 
 
@@ -270,5 +272,6 @@ def test_threads_bin_into_separate_tables_then_merge():
         th.join()
     merged = parts[0] + parts[1]
     np.testing.assert_array_equal(merged.count, whole.count)
-    np.testing.assert_allclose(merged.mean, whole.mean, rtol=1e-12, equal_nan=True)
+    np.testing.assert_array_equal(merged.mean, whole.mean)  # exact sums: split-independent
+    np.testing.assert_array_equal(merged.variance, whole.variance)
     assert 0 < merged.n_samples < MERL_BINS

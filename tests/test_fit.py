@@ -77,9 +77,10 @@ def test_fit_text_report_and_one_line_errors(quick_tables: dict[str, Path], tmp_
 
 # ---------------------------------------------------------------- synthetic tables
 def synthetic_table(model_name: str, p: dict, *, rel_noise: float = 0.01, seed: int = 0,
-                    **options: object) -> tuple[IsotropicTable, object]:
+                    rel_white: float = 0.0, **options: object) -> tuple[IsotropicTable, object]:
     """A table whose bins hold the model at their centres plus Gaussian noise of the stated
-    relative standard deviation, with that uncertainty recorded as the budget."""
+    relative standard deviation, with that uncertainty recorded as the budget (and a common
+    white-reference term of ``rel_white`` times each value)."""
     model = make_model(model_name, **options)
     edges = np.arange(-7.5, 90, 15.0).clip(0, 90)
     table = IsotropicTable(edges, edges, np.arange(-15.0, 195, 30).clip(0, 180))
@@ -91,7 +92,7 @@ def synthetic_table(model_name: str, p: dict, *, rel_noise: float = 0.01, seed: 
     sigma = rel_noise * f
     noisy = f + np.random.default_rng(seed).normal(size=f.shape) * sigma
     table.add(ti, tr, dp, noisy, variances={"noise": sigma**2},
-              uncertainties={"white_reference": np.zeros_like(f)})
+              uncertainties={"white_reference": rel_white * np.abs(noisy)})
     return table, model
 
 
@@ -131,7 +132,7 @@ def test_the_common_white_reference_error_widens_the_colour_parameters_only() ->
     table, model = synthetic_table("ggx", p, rel_noise=0.002)
     base = fit_model(model, bin_data(table))
     assert set(table.uncertainty_terms) == {"noise", "white_reference"}
-    table._unc._u["white_reference"][:] = 0.01 * np.nan_to_num(table.mean.reshape(-1, 3))
+    table, model = synthetic_table("ggx", p, rel_noise=0.002, rel_white=0.01)  # same values
     widened = fit_model(model, bin_data(table))
     assert widened.sigma["alpha"] == pytest.approx(base.sigma["alpha"], rel=0.3)
     assert np.all(widened.sigma["albedo"] > 5 * base.sigma["albedo"])

@@ -21,8 +21,9 @@ from conftest import EXAMPLES
 from acquisition import api
 from acquisition.api.truth import image_truth_table
 from acquisition.geometry.alignment import Alignment
-from acquisition.reduction.image import reduce_image_session
+from acquisition.reduction.image import ImageReducer, reduce_image_session
 from acquisition.tables import IsotropicTable
+from acquisition.tables.partial import load_partial, merge_all, save_partial
 from calibration.bundle import CalibrationBundle
 
 MATERIAL = "ggx:albedo=0.1,alpha=0.1,f0=0.5"
@@ -108,3 +109,23 @@ def test_the_calibration_and_its_pointing_are_a_correlated_term(session: Path,
           f"term's median {np.median(u / table.mean[..., 1][peak]):.2%}")
     assert ratio.size >= 100
     assert 0.7 <= float(np.median(ratio)) <= 1.3
+
+
+def test_angular_terms_survive_any_split_into_partials(session: Path, tmp_path: Path) -> None:
+    """The angular terms come from each frame's frame-bins, carried in the partial tables:
+    frames reduced in any split and order, one partial through a file, merged, finish into
+    the table a sequential reduction gives, budget and lamp correction included, bit for bit."""
+    whole = reduce_image_session(session).table
+    assert {"angular", "source_size"} <= set(whole.uncertainty_terms)
+    reducer = ImageReducer.open(session)
+    order = np.random.default_rng(3).permutation(len(reducer.frames))
+    parts = [reducer.partial([reducer.frames[i] for i in chunk])
+             for chunk in np.array_split(order, 3)]
+    assert all(p.frame_data for p in parts)
+    parts[0] = load_partial(save_partial(tmp_path / "part.h5", parts[0]))
+    table = reducer.reduction(merge_all(parts[::-1])).table
+    assert table.uncertainty_terms.keys() == whole.uncertainty_terms.keys()
+    for name, term in whole.uncertainty_terms.items():
+        np.testing.assert_array_equal(table.uncertainty_terms[name].values, term.values, name)
+    np.testing.assert_array_equal(table.mean, whole.mean)
+    np.testing.assert_array_equal(table.std_error, whole.std_error)

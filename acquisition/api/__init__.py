@@ -50,6 +50,11 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "acquisition.calibrate.radiometric": ("KINDS", "CalibrationRun", "calibrate"),
     "acquisition.calibrate.geometry": ("GeometryRun", "calibrate_geometry"),
     "acquisition.reduction.point": ("Reduction", "reduce_session"),
+    "acquisition.reduction": ("CHECKPOINT_EVERY",),
+    "acquisition.reduction.checkpoint": ("checkpoint_path",),
+    "acquisition.reduction.image": ("ImageReducer",),
+    "acquisition.tables.partial": ("ReductionPartial", "TablePartial", "merge_all", "save_partial",
+                                   "load_partial"),
     "acquisition.reduction.live": ("LiveReduction",),
     "acquisition.tables": ("IsotropicTable", "MerlTable"),
     "acquisition.formats.merl": ("read_merl", "write_merl"),
@@ -154,6 +159,9 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.lightstage.relight import relight_files
     from acquisition.lightstage.sequences import SEQUENCES, TimeEstimate
     from acquisition.planning.planner import Planner, Reason, Rejection, Sweep
+    from acquisition.reduction import CHECKPOINT_EVERY
+    from acquisition.reduction.checkpoint import checkpoint_path
+    from acquisition.reduction.image import ImageReducer
     from acquisition.reduction.live import LiveReduction
     from acquisition.reduction.point import Reduction, reduce_session
     from acquisition.session.folder import SessionFolder
@@ -170,6 +178,13 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.simworld.materials import DEFAULT_MATERIAL
     from acquisition.simworld.serve import serve_dmx, serve_rig, serve_servos
     from acquisition.tables import IsotropicTable, MerlTable
+    from acquisition.tables.partial import (
+        ReductionPartial,
+        TablePartial,
+        load_partial,
+        merge_all,
+        save_partial,
+    )
     from calibration.raw import format_inspection, inspect_raw
     from drivers.dynamixel.bus import COMMON_BAUD_RATES
     from drivers.errors import ConfigError, GonioError, OutputRefused, SessionError, StorageError

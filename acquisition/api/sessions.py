@@ -24,6 +24,8 @@ from acquisition.devices.rig import (
 from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep
 from acquisition.planning.timing import TimeModel
+from acquisition.reduction import CHECKPOINT_EVERY
+from acquisition.reduction.checkpoint import checkpoint_path
 from acquisition.reduction.point import Reduction, reduce_session
 from acquisition.session.alignment import alignment_of, bundle_at
 from acquisition.session.capture import CaptureEngine
@@ -375,6 +377,7 @@ def reduce(
     progress: Callable[[int, int], None] | None = None,
     *,
     calibration: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
 ) -> Reduction:
     """Reduce a session into its isotropic BRDF table, saved as HDF5 (default: DIR/brdf.h5).
 
@@ -386,18 +389,28 @@ def reduce(
     read-only media reduces to a writable ``table_path``. An output that would overwrite the
     session's own files, or an existing file that is not a gonio table, is refused before
     reducing.
+
+    An image-based session checkpoints its partial tables beside the table
+    (``NAME.checkpoint.h5``, :mod:`acquisition.reduction.checkpoint`) every
+    ``checkpoint_every`` frames (0: only once all are binned): reduced again after an
+    interruption, it resumes from there, to the same table byte for byte. The checkpoint is
+    deleted once the table is written.
     """
     from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
 
     path = session_dir.path if isinstance(session_dir, SessionFolder) else session_dir
     out = Path(table_path) if table_path else Path(path) / DEFAULT_TABLE
     check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(path,))
+    resume = checkpoint_path(out)
     if is_lightstage_session(path):
         if calibration is not None:
             raise ConfigError(f"{path} is a light-stage session, calibrated by its own OLAT white "
                               "frames: drop --calibration")
         result: Reduction = reduce_lightstage_session(path, progress)
     else:
-        result = reduce_session(session_dir, progress, bundle=calibration)
+        result = reduce_session(session_dir, progress, bundle=calibration, checkpoint=resume,
+                                checkpoint_every=checkpoint_every)
     result.table.save_h5(out, inputs=(path,), merl=getattr(result, "merl", None))
+    with suppress(FileNotFoundError):
+        resume.unlink()
     return result

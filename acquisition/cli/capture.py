@@ -41,8 +41,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_out(p, "table file (default: SESSION/brdf.h5)", aliases=("--output",))
     p.add_argument("--calibration", metavar="BUNDLE",
                    help="calibration bundle to apply (default: the session's own copy)")
+    p.add_argument("--checkpoint-every", type=_frames, default=api.CHECKPOINT_EVERY, metavar="N",
+                   help="image-based sessions: save the partial tables beside the table every N "
+                        "frames, to resume after an interruption (0: only at the end; "
+                        f"default {api.CHECKPOINT_EVERY})")
     add_json(p)
     p.set_defaults(func=run_reduce)
+
+
+def _frames(text: str) -> int:
+    """A number of frames ≥ 0 (argparse type)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected a number of frames ≥ 0, got {text!r}")
+    return n
 
 
 def estimate_line(summary: dict[str, object]) -> str:
@@ -119,7 +134,7 @@ def run_resume(args: argparse.Namespace) -> int:
 def run_reduce(args: argparse.Namespace) -> int:
     with step_bar("reduce", unit="frame") as bar:
         result = api.reduce(args.session, args.out, progress=lambda d, t: bar(d, t),
-                            calibration=args.calibration)
+                            calibration=args.calibration, checkpoint_every=args.checkpoint_every)
     out = Path(args.out or Path(args.session) / "brdf.h5")
     table = result.table
     measured = int((table.count > 0).sum())
@@ -127,6 +142,9 @@ def run_reduce(args: argparse.Namespace) -> int:
     ratio, repeats = table.scatter
     lines = [f"{out}: {result.frames} frames → {measured} measured bins; "
              f"white reference drift {result.drift_pct:.2f} %"]
+    resumed = getattr(result, "resumed_frames", 0)
+    if resumed:
+        lines.insert(0, f"resumed: {resumed} frames from the checkpoint of an interrupted run")
     if table.tracks_uncertainty:
         lines.append(f"uncertainty: median {rel:.3g} % per bin (noise model: "
                      f"{table.provenance.get('noise_model', 'unknown')})"
@@ -136,5 +154,6 @@ def run_reduce(args: argparse.Namespace) -> int:
                   "references": result.references, "drift_pct": result.drift_pct,
                   "median_rel_uncertainty_pct": rel,
                   "noise_model": table.provenance.get("noise_model"),
-                  "scatter_ratio": ratio, "scatter_bins": repeats}, lines)
+                  "scatter_ratio": ratio, "scatter_bins": repeats,
+                  "resumed_frames": resumed}, lines)
     return 0

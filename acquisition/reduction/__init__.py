@@ -5,3 +5,7 @@ sample was taken, its angular uncertainty, and the live estimate.
 May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
 ``acquisition.tables``, ``acquisition.formats``, ``calibration``, ``drivers.errors``.
 """
+
+CHECKPOINT_EVERY = 10
+"""Frames an image-based reduction bins between two checkpoints of its partial tables
+(:mod:`acquisition.reduction.checkpoint`; ``gonio reduce --checkpoint-every``)."""

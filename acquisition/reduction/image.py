@@ -67,8 +67,10 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
 from acquisition.geometry.kinematics import poses_from_directions
+from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
-from acquisition.reduction.imageangular import ImageAngular
+from acquisition.reduction.checkpoint import Checkpointed, reduction_key
+from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import PixelGeometry, Pixels, frame_geometry
 from acquisition.reduction.point import (
     UNCERTAINTY_TERMS,
@@ -84,6 +86,7 @@ from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable, MerlTable
+from acquisition.tables.partial import ReductionPartial
 from calibration.bundle import CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage
@@ -124,6 +127,8 @@ class ImageReduction(Reduction):
     merl: MerlTable = field(default_factory=MerlTable)
     samples: int = 0
     """BRDF samples taken from the frames (before binning)."""
+    resumed_frames: int = 0
+    """Frames taken from a checkpoint (reduced by an earlier, interrupted run)."""
 
 
 def _linear(folder: SessionFolder, rig: RigConfig, rec: StepRecord,
@@ -218,6 +223,185 @@ def frame_samples(
                         calibration_rel, (rows[keep], cols[keep]), geo.mask.shape)
 
 
+@dataclass
+class ImageReducer:
+    """What reducing frames of an image-based session needs, prepared once: the session, the
+    calibration, the white reference's scale C at every reference frame, and the sample frames
+    (journal rows, an HDR bracket's together). Frames then reduce to partial tables
+    (:meth:`partial`), in any split, order or grouping; merged, they give the table a
+    sequential reduction gives, bit for bit."""
+
+    folder: SessionFolder
+    rig: RigConfig
+    cal: CalibrationBundle | None
+    model: SampleGeometry
+    check: FrameCheck
+    frames: list[list[StepRecord]]
+    ref_steps: np.ndarray
+    ref_cals: np.ndarray
+    ref_vars: np.ndarray
+    min_cos: float = DEFAULT_MIN_COS
+
+    @classmethod
+    def open(cls, session_dir: str | Path | SessionFolder,
+             bundle: str | Path | CalibrationBundle | None = None,
+             min_cos: float = DEFAULT_MIN_COS) -> ImageReducer:
+        """Read the journal and the white-reference frames (SessionError if the session is not
+        image-based, has no frame, or no usable white reference)."""
+        folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
+        rig = folder.rig()
+        if not rig.sample.image_based:
+            raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
+        cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
+        with folder.journal(readonly=True) as journal:
+            records = [r for r in journal.steps() if r.status == "done"]
+            complete = {g for g in {hdr_group(r.note) for r in records} - {None}
+                        if journal.meta(f"{HDR_DONE_META}{g}") is not None}
+        if not records:
+            raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
+        reducer = cls(folder, rig, cb, SampleGeometry.of(rig, cb), FrameCheck(folder.path),
+                      sample_frames(records, complete), np.zeros(0), np.zeros((0, 3)),
+                      np.zeros((0, 3)), min_cos)
+        reducer._read_references([r for r in records if r.kind == REFERENCE])
+        return reducer
+
+    def _read_references(self, refs: list[StepRecord]) -> None:
+        """C (3,) and its variance at every readable white-reference frame."""
+        rho = np.asarray(self.rig.white_reference.reflectance, dtype=np.float64)
+        steps, cals, rels = [], [], []
+        for rec in refs:
+            image = self.check.load(rec.frame, lambda rec=rec: _linear(self.folder, self.rig, rec,
+                                                                       self.cal))
+            if image is None:
+                continue
+            geo = _geometry(self.rig, rec, image.valid.shape, "flat", self.model)
+            cal, n = white_calibration(image, geo, self.rig.camera.roi, rho)
+            if n == 0:
+                raise SessionError(
+                    f"{self.folder.path}: white-reference frame {rec.frame} has no valid pixel on "
+                    "the plate in the ROI: move [camera] roi onto the plate or shorten the exposure")
+            steps.append(rec.step)
+            cals.append(cal)
+            rels.append(white_relative_uncertainty(image, geo, self.rig.camera.roi))
+        if not cals:
+            self.check.raise_if_any()
+            raise SessionError(f"{self.folder.path} has no white-reference frame: resume the "
+                               "capture to take it")
+        self.ref_steps, self.ref_cals = np.array(steps, float), np.array(cals)
+        self.ref_vars = (np.array(rels) * self.ref_cals) ** 2
+
+    @property
+    def n_references(self) -> int:
+        return int(self.ref_steps.size)
+
+    @property
+    def drift_pct(self) -> float:
+        """The white reference's peak-to-peak change, % of its mean (largest over colours)."""
+        cals = self.ref_cals
+        return float(np.max(np.ptp(cals, axis=0) / np.mean(cals, axis=0)) * 100.0)
+
+    @property
+    def key(self) -> str:
+        """What makes this reduction's partials mergeable: the session, the calibration, the
+        options, the table grid and the white reference's scale (a resumed capture with new
+        reference frames makes earlier partials stale)."""
+        plan = self.folder.plan().table
+        refs = np.concatenate([self.ref_steps, self.ref_cals.ravel(), self.ref_vars.ravel()])
+        return reduction_key("image", self.folder, self.cal, refs, min_cos=self.min_cos,
+                             edges=[list(map(float, e)) for e in (plan.theta_i_edges,
+                                    plan.theta_r_edges, plan.delta_phi_edges)])
+
+    def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
+        """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
+        frame that cannot be decoded is skipped and noted (``check.raise_if_any``)."""
+        eye = np.eye(self.ref_steps.size)
+        for recs in frames:
+            rec = recs[0]
+            plain = len(recs) == 1 and hdr_group(rec.note) is None
+            image = self.check.load(rec.frame, lambda recs=recs, rec=rec, plain=plain: (
+                _linear(self.folder, self.rig, rec, self.cal) if plain
+                else _merged(self.folder, self.rig, recs, self.cal)))
+            if image is None:
+                continue
+            geo = _geometry(self.rig, rec, image.valid.shape, model=self.model)
+            cal = np.array([np.interp(rec.step, self.ref_steps, self.ref_cals[:, c]) for c in range(3)])
+            w = np.array([np.interp(rec.step, self.ref_steps, eye[k]) for k in range(eye.shape[0])])
+            fs = frame_samples(image, geo, cal, rec.step, self.min_cos,
+                               np.sqrt(w**2 @ self.ref_vars) / cal)
+            yield replace(fs, joints=rec.joints_read or rec.joints_cmd)
+
+    def new_tables(self, provenance: dict[str, object] | None = None
+                   ) -> tuple[IsotropicTable, MerlTable]:
+        """The plan's empty isotropic table (tracking the budget) and an empty MERL table."""
+        plan = self.folder.plan().table
+        table = IsotropicTable(plan.theta_i_edges, plan.theta_r_edges, plan.delta_phi_edges,
+                               provenance=provenance)
+        table.track_uncertainty(*UNCERTAINTY_TERMS)
+        return table, MerlTable(provenance)
+
+    def tables(self) -> tuple[IsotropicTable, MerlTable]:
+        """:meth:`new_tables` with the session's provenance (and the noise model's source)."""
+        rig, cal = self.rig, self.cal
+        provenance = session_provenance(self.folder, rig, self.folder.plan(), image_based=True,
+                                        sample_shape=rig.sample.shape)
+        if cal is not None:
+            provenance["calibration_bundle"] = str(cal.path.resolve())
+        table, merl = self.new_tables(provenance)
+        table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+        return table, merl
+
+    def finish(self, table: IsotropicTable, merl: MerlTable, done: ReductionPartial,
+               t0: float, merl_path: str | Path | None = None, resumed: int = 0
+               ) -> ImageReduction:
+        """The reduction of the frames ``done`` holds, binned in ``table`` and ``merl``: the
+        white reference's drift in their provenance, the budget's binning term, the angular
+        terms of ``done``'s frame-bins (in frame order) with the lamp's correction, the MERL
+        file (``merl_path``)."""
+        drift = self.drift_pct
+        for t in (table, merl):
+            t.provenance["reference_drift_pct"] = drift
+        table.add_binning_term()  # the pixels' scatter: before the terms they share
+        ImageAngular(self.rig, self.model, table).apply(
+            [FrameBins.from_arrays(done.frame_data[s]) for s in sorted(done.frame_data)])
+        if self.model.alignment is not None:
+            table.provenance["geometry_calibration"] = self.model.alignment.to_dict()
+        if merl_path is not None:
+            write_merl(merl_path, merl)
+        return ImageReduction(table=table, frames=len(done.steps), references=self.n_references,
+                              drift_pct=drift, seconds=time.monotonic() - t0,
+                              bundle=None if self.cal is None else self.cal.path, merl=merl,
+                              samples=done.samples, resumed_frames=resumed)
+
+    def reduction(self, partial: ReductionPartial, merl_path: str | Path | None = None
+                  ) -> ImageReduction:
+        """The reduction a (merged) partial of this session's frames finishes into: the same
+        tables as :func:`reduce_image_session` of those frames, bit for bit."""
+        if partial.key != self.key:
+            raise SessionError("this partial belongs to another reduction (session, calibration "
+                               "or options differ): reduce its frames again")
+        table, merl = self.tables()
+        table.merge_partial(partial.tables["isotropic"])
+        merl.merge_partial(partial.tables["merl"])
+        return self.finish(table, merl, partial, time.monotonic(), merl_path)
+
+    def partial(self, frames: Iterable[list[StepRecord]]) -> ReductionPartial:
+        """The partial tables of ``frames`` (rows of :attr:`frames`)."""
+        table, merl = self.new_tables()
+        angular = ImageAngular(self.rig, self.model, table)
+        steps, samples, data = set(), 0, {}
+        for fs in self.samples(frames):
+            bin_frames([fs], table, merl, None, 0)
+            steps.add(fs.step)
+            samples += fs.count
+            arrays = frame_angular(angular, fs)
+            if arrays is not None:
+                data[fs.step] = arrays
+        self.check.raise_if_any()
+        return ReductionPartial(self.key, frozenset(steps),
+                                {"isotropic": table.partial(), "merl": merl.partial()}, samples,
+                                data)
+
+
 def iter_session_samples(
     session_dir: str | Path,
     *,
@@ -230,64 +414,26 @@ def iter_session_samples(
     frame at a time (at most ``max_frames``). ``drift``, if given, receives the white
     reference's peak-to-peak change in % of its mean. ``bundle``: the calibration bundle to
     apply (default: the session's copy, if any)."""
-    folder = SessionFolder(session_dir)
-    rig = folder.rig()
-    if not rig.sample.image_based:
-        raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
-    cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
-    model = SampleGeometry.of(rig, cb)
-    with folder.journal(readonly=True) as journal:
-        records = [r for r in journal.steps() if r.status == "done"]
-        complete = {g for g in {hdr_group(r.note) for r in records} - {None}
-                    if journal.meta(f"{HDR_DONE_META}{g}") is not None}
-    if not records:
-        raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
-    rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
-    check = FrameCheck(folder.path)
-    steps, cals, rels = [], [], []
-    for rec in (r for r in records if r.kind == REFERENCE):
-        image = check.load(rec.frame, lambda rec=rec: _linear(folder, rig, rec, cb))
-        if image is None:
-            continue
-        geo = _geometry(rig, rec, image.valid.shape, "flat", model)
-        cal, n = white_calibration(image, geo, rig.camera.roi, rho)
-        if n == 0:
-            raise SessionError(
-                f"{folder.path}: white-reference frame {rec.frame} has no valid pixel on the plate "
-                "in the ROI: move [camera] roi onto the plate or shorten the exposure"
-            )
-        steps.append(rec.step)
-        cals.append(cal)
-        rels.append(white_relative_uncertainty(image, geo, rig.camera.roi))
-    if not cals:
-        check.raise_if_any()
-        raise SessionError(f"{folder.path} has no white-reference frame: resume the capture to take it")
-    ref_steps, ref_cals = np.array(steps, float), np.array(cals)
-    ref_vars = (np.array(rels) * ref_cals) ** 2
-    eye = np.eye(len(steps))
+    reducer = ImageReducer.open(session_dir, bundle, min_cos)
     if drift is not None:
-        drift.append(float(np.max(np.ptp(ref_cals, axis=0) / np.mean(ref_cals, axis=0)) * 100.0))
-    for recs in sample_frames(records, complete)[:max_frames]:
-        rec = recs[0]
-        plain = len(recs) == 1 and hdr_group(rec.note) is None
-        image = check.load(rec.frame, lambda recs=recs, rec=rec, plain=plain: (
-            _linear(folder, rig, rec, cb) if plain else _merged(folder, rig, recs, cb)))
-        if image is None:
-            continue
-        geo = _geometry(rig, rec, image.valid.shape, model=model)
-        cal = np.array([np.interp(rec.step, ref_steps, ref_cals[:, c]) for c in range(3)])
-        w = np.array([np.interp(rec.step, ref_steps, eye[k]) for k in range(len(steps))])
-        fs = frame_samples(image, geo, cal, rec.step, min_cos, np.sqrt(w**2 @ ref_vars) / cal)
-        yield replace(fs, joints=rec.joints_read or rec.joints_cmd)
-    check.raise_if_any()
+        drift.append(reducer.drift_pct)
+    yield from reducer.samples(reducer.frames[:max_frames])
+    reducer.check.raise_if_any()
+
+
+def frame_angular(angular: ImageAngular, fs: FrameSamples) -> dict[str, np.ndarray] | None:
+    """A frame's frame-bins with their angular terms, as a partial's frame data (None when
+    the rig states no angular error or the frame lacks its pixels or joints)."""
+    if fs.pixels is None or not fs.shape or not fs.joints:
+        return None
+    fb = angular.frame_bins(fs.joints, fs.shape, fs.pixels, fs.wi, fs.wo, fs.brdf)
+    return None if fb is None else fb.to_arrays()
 
 
 def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: MerlTable,
-               progress: Callable[[int, int], None] | None, total: int,
-               angular: ImageAngular | None = None) -> tuple[int, int]:
+               progress: Callable[[int, int], None] | None, total: int) -> tuple[int, int]:
     """Bin each frame's per-pixel samples into both tables, one frame at a time (memory does
-    not grow with the session), handing each frame to ``angular`` too; returns (samples,
-    frames) binned."""
+    not grow with the session); returns (samples, frames) binned."""
     samples = count = 0
     for fs in frames:
         merl.add_vectors(fs.wi, fs.wo, fs.brdf)
@@ -299,8 +445,6 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
             budget = {"variances": {"noise": nan if fs.variance is None else fs.variance},
                       "uncertainties": {"white_reference": np.abs(fs.brdf) * rel}}
         table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf, **budget)
-        if angular is not None and fs.pixels is not None and fs.shape and fs.joints:
-            angular.add(fs.joints, fs.shape, fs.pixels, fs.wi, fs.wo, fs.brdf)
         samples += fs.count
         count += 1
         if progress:
@@ -316,6 +460,8 @@ def reduce_image_session(
     min_cos: float = DEFAULT_MIN_COS,
     max_frames: int | None = None,
     bundle: str | Path | None = None,
+    checkpoint: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
 ) -> ImageReduction:
     """Bin every valid sample pixel of an image-based session into the MERL and isotropic tables.
 
@@ -334,41 +480,25 @@ def reduce_image_session(
         Reduce only the first N sample frames (e.g. of a capture still running).
     bundle
         Calibration bundle folder to apply; default the session's own copy, if any.
+    checkpoint, checkpoint_every
+        A partial-tables file (:mod:`acquisition.reduction.checkpoint`): the frames it holds
+        are taken from it, not reduced again, and it is rewritten every ``checkpoint_every``
+        frames (0: only at the end) and once all are binned, so that an interrupted reduction
+        resumes there.
     """
     t0 = time.monotonic()
-    folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
-    rig, plan = folder.rig(), folder.plan()
-    cal = find_bundle(folder, bundle)
-    with folder.journal(readonly=True) as journal:
-        done = [r for r in journal.steps() if r.status == "done"]
-        complete = {g for g in {hdr_group(r.note) for r in done} - {None}
-                    if journal.meta(f"{HDR_DONE_META}{g}") is not None}
-    n_refs = sum(r.kind == REFERENCE for r in done)
-    total = len(sample_frames(done, complete)[:max_frames])
-    provenance = session_provenance(folder, rig, plan, image_based=True,
-                                    sample_shape=rig.sample.shape)
-    if cal is not None:
-        provenance["calibration_bundle"] = str(cal.path.resolve())
-    table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
-                           plan.table.delta_phi_edges, provenance=provenance)
-    table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
-    table.track_uncertainty(*UNCERTAINTY_TERMS)
-    model = SampleGeometry.of(rig, cal)
-    angular = ImageAngular(rig, model, table)
-    merl = MerlTable(provenance)
-    drift: list[float] = []
-    samples, frames = bin_frames(
-        iter_session_samples(folder.path, min_cos=min_cos, max_frames=max_frames,
-                             drift=drift, bundle=cal),
-        table, merl, progress, total, angular)
-    for t in (table, merl):
-        t.provenance["reference_drift_pct"] = drift[0]
-    table.add_binning_term()  # the pixels' scatter: before the terms they share
-    angular.apply()
-    if model.alignment is not None:
-        table.provenance["geometry_calibration"] = model.alignment.to_dict()
-    if merl_path is not None:
-        write_merl(merl_path, merl)
-    return ImageReduction(table=table, frames=frames, references=n_refs, drift_pct=drift[0],
-                          seconds=time.monotonic() - t0, bundle=None if cal is None else cal.path,
-                          merl=merl, samples=samples)
+    reducer = ImageReducer.open(session_dir, bundle, min_cos)
+    table, merl = reducer.tables()
+    angular = ImageAngular(reducer.rig, reducer.model, table)
+    frames = reducer.frames[:max_frames]
+    run = Checkpointed(reducer.key, {"isotropic": table, "merl": merl}, checkpoint,
+                       checkpoint_every, inputs=(reducer.folder.path,))
+    held = run.resume(f[0].step for f in frames)
+    for fs in reducer.samples(f for f in frames if f[0].step not in held):
+        bin_frames([fs], table, merl, None, 0)
+        run.frame_done(fs.step, fs.count, frame_angular(angular, fs))
+        if progress:
+            progress(len(run.steps), len(frames))
+    reducer.check.raise_if_any()
+    run.save()
+    return reducer.finish(table, merl, run.partial(), t0, merl_path, resumed=run.resumed)

@@ -104,6 +104,20 @@ class FrameBins:
     terms: AngularTerms
     """The frame-bins' angular terms (of their mean values)."""
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The frame-bins as named arrays (a partial table's frame data)."""
+        t = self.terms
+        return {"bins": self.bins, "count": self.count, "value": self.value,
+                "variance": t.variance, "calibration": t.calibration,
+                "source_bias": t.source_bias}
+
+    @classmethod
+    def from_arrays(cls, a: Mapping[str, np.ndarray]) -> FrameBins:
+        """Inverse of :meth:`to_arrays`."""
+        return cls(np.asarray(a["bins"]), np.asarray(a["count"]), np.asarray(a["value"]),
+                   AngularTerms(np.asarray(a["variance"]), np.asarray(a["calibration"]),
+                                np.asarray(a["source_bias"])))
+
     @classmethod
     def concatenate(cls, parts: list[FrameBins]) -> FrameBins:
         def cat(get: Callable[[FrameBins], np.ndarray]) -> np.ndarray:
@@ -139,13 +153,21 @@ class ImageAngular:
 
     def add(self, joints: Mapping[str, float], shape: tuple[int, int], pixels: Pixels,
             wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> None:
-        """One frame: its read-back joints, image shape (superpixels), and its samples' pixels
-        (rows, columns), local directions (N, 3) and values (N, 3)."""
+        """One frame (see :meth:`frame_bins`), kept for :meth:`apply`."""
+        fb = self.frame_bins(joints, shape, pixels, wi, wo, values)
+        if fb is not None:
+            self._frames.append(fb)
+
+    def frame_bins(self, joints: Mapping[str, float], shape: tuple[int, int], pixels: Pixels,
+                   wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> FrameBins | None:
+        """One frame's frame-bins and their terms, from its read-back joints, image shape
+        (superpixels), and its samples' pixels (rows, columns), local directions (N, 3) and
+        values (N, 3); None when the rig states no angular error or no pixel is binned."""
         if not self.active:
-            return
+            return None
         group = _FrameGroups.of(self.table, pixels, wi, wo, values)
         if group is None:
-            return
+            return None
         at = _PixelCoordinates(self.rig, self.model, joints, shape, group.central)
         raw = at.coords()
         s = self.sources
@@ -162,7 +184,7 @@ class ImageAngular:
             np.nan_to_num(at.joint_jacobians()) if s.independent else None,
             np.nan_to_num(at.calibration_jacobians(s.calibration_names)) if s.correlated
             else None, disc)
-        self._frames.append(FrameBins(group.bins, group.count, group.value, terms))
+        return FrameBins(group.bins, group.count, group.value, terms)
 
     def terms(self) -> tuple[dict[str, str], dict[str, str]]:
         """(independent, correlated) names → descriptions of the terms :meth:`apply` adds."""
@@ -173,12 +195,15 @@ class ImageAngular:
         correlated = {k: v + FRAME_NOTE for k, v in CALIBRATION_TERM.items()} if s.correlated else {}
         return independent, correlated
 
-    def apply(self) -> None:
-        """Add the terms to the table's budget and correct its means for the lamp's blur
-        (module docstring); call once every frame is binned."""
-        if not self._frames:
+    def apply(self, frames: list[FrameBins] | None = None) -> None:
+        """Add the terms of ``frames`` (default: those :meth:`add` kept; in frame order, so
+        that the sums are the same however the frames were reduced) to the table's budget and
+        correct its means for the lamp's blur (module docstring); call once every frame is
+        binned."""
+        frames = self._frames if frames is None else frames
+        if not frames:
             return
-        fb, t = FrameBins.concatenate(self._frames), self.table
+        fb, t = FrameBins.concatenate(frames), self.table
         terms = fb.terms
         n = t.count.reshape(-1).astype(float)[:, None]
         k = fb.count.astype(float)[:, None]

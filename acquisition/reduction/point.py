@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +60,7 @@ from acquisition.config.plan import PlanSpec
 from acquisition.config.rig import RigConfig
 from acquisition.config.sensor import nominal_noise_model
 from acquisition.geometry.kinematics import Pose
+from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
     CALIBRATION_TERM,
@@ -69,12 +70,14 @@ from acquisition.reduction.angular import (
     angular_terms,
 )
 from acquisition.reduction.badframes import FrameCheck
+from acquisition.reduction.checkpoint import reduction_key
 from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable
+from acquisition.tables.partial import ReductionPartial
 from calibration.bundle import SCALARS_FILE, CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage, NoiseModel, linearize, roi_mean
@@ -250,6 +253,8 @@ def reduce_session(
     bundle: str | Path | None = None,
     reference_axis: str = "step",
     geometry: bool = True,
+    checkpoint: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
 ) -> Reduction:
     """Linearize every captured frame of a session and bin it into its plan's table.
 
@@ -268,38 +273,119 @@ def reduce_session(
     geometry:
         Apply the bundle's geometric calibration (default); False reduces with the rig
         file's geometry as if the bundle had none (to see what the calibration changes).
+    checkpoint, checkpoint_every:
+        An image-based session's checkpoint (:mod:`acquisition.reduction.checkpoint`); a
+        point session reads every frame before it bins (the angular budget terms need all
+        samples), so it takes none.
     """
-    if reference_axis not in ("step", "time"):
-        raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
-    t0 = time.monotonic()
     folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
-    cal = find_bundle(folder, bundle)
-    rig, plan = folder.rig(), folder.plan()
-    if rig.sample.image_based:
+    if folder.rig().sample.image_based:
         from acquisition.reduction.image import reduce_image_session  # imports reduce: load lazily
 
-        return reduce_image_session(folder, progress, bundle=bundle)
-    geo = SampleGeometry.of(rig, cal, calibrated=geometry)
-    records, complete = _done_records(folder)
-    frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),
-                            FrameCheck(folder.path))
-    refs = _reference_signals(frames, records)
-    white = _WhiteScale.of(refs, rig, _reference_cos(geo, records, rig))
-    drift = _drift_pct(refs)
-    table = _new_table(folder, rig, plan, drift, cal)
-    table.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
-    poses, brackets = _samples(records, complete)
-    samples = _collect(poses, frames, brackets, geo, white, progress)
-    frames.check.raise_if_any()
-    _bin_samples(table, samples, rig, geo)
-    return Reduction(table, len(poses), len(refs), drift, time.monotonic() - t0,
-                     table.std_error**2, None if cal is None else cal.path)
+        return reduce_image_session(folder, progress, bundle=bundle, checkpoint=checkpoint,
+                                    checkpoint_every=checkpoint_every)
+    reducer = PointReducer.open(folder, bundle, reference_axis, geometry, progress)
+    table = reducer.new_table()
+    _bin(table, reducer.binned)
+    return reducer.result(table)
+
+
+@dataclass
+class PointReducer:
+    """A point session read once: every sample's value and budget (the angular terms need
+    every sample), ready to bin into the plan's table — all at once, or any split of its
+    frames into partial tables (:meth:`partial`) that merge to the same table, bit for bit."""
+
+    template: IsotropicTable
+    """The empty table: grid, provenance, the budget's terms."""
+    binned: list[_Binned]
+    key: str
+    frames: int
+    references: int
+    drift_pct: float
+    bundle: CalibrationBundle | None
+    t0: float
+
+    @classmethod
+    def open(cls, session_dir: str | Path | SessionFolder, bundle: str | Path | None = None,
+             reference_axis: str = "step", geometry: bool = True,
+             progress: Callable[[int, int], None] | None = None) -> PointReducer:
+        """Read every frame (``progress(done, total)`` after each) and work out each sample's
+        value and budget (see :func:`reduce_session` for the arguments)."""
+        if reference_axis not in ("step", "time"):
+            raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
+        t0 = time.monotonic()
+        folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
+        cal = find_bundle(folder, bundle)
+        rig, plan = folder.rig(), folder.plan()
+        geo = SampleGeometry.of(rig, cal, calibrated=geometry)
+        records, complete = _done_records(folder)
+        frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),
+                                FrameCheck(folder.path))
+        refs = _reference_signals(frames, records)
+        white = _WhiteScale.of(refs, rig, _reference_cos(geo, records, rig))
+        drift = _drift_pct(refs)
+        template = _new_table(folder, rig, plan, drift, cal)
+        template.provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), cal)
+        poses, brackets = _samples(records, complete)
+        samples = _collect(poses, frames, brackets, geo, white, progress)
+        frames.check.raise_if_any()
+        independent, correlated, binned = _budget(samples, rig, geo)
+        template.track_uncertainty(independent, correlated)
+        if geo.alignment is not None:
+            template.provenance["geometry_calibration"] = geo.alignment.to_dict()
+        values = np.concatenate([[r.step, *r.signal, *r.variance] for r in refs])
+        key = reduction_key("point", folder, cal, values, reference_axis=reference_axis,
+                            geometry=geometry, edges=[list(map(float, e)) for e in (
+                                template.theta_i_edges, template.theta_r_edges,
+                                template.delta_phi_edges)])
+        return cls(template, binned, key, len(poses), len(refs), drift, cal, t0)
+
+    @property
+    def steps(self) -> list[int]:
+        """The journal step of every sample, in order."""
+        return [b.step for b in self.binned]
+
+    def new_table(self) -> IsotropicTable:
+        """An empty table like :attr:`template` (grid, provenance, budget terms)."""
+        t = self.template
+        table = IsotropicTable(t.theta_i_edges, t.theta_r_edges, t.delta_phi_edges,
+                               fold_delta_phi=t.fold_delta_phi, provenance=t.provenance)
+        terms = t.uncertainty_terms
+        table.track_uncertainty({k: v.description for k, v in terms.items() if not v.correlated},
+                                {k: v.description for k, v in terms.items() if v.correlated})
+        return table
+
+    def partial(self, steps: Iterable[int]) -> ReductionPartial:
+        """The partial table of the samples of the frames ``steps``."""
+        wanted = set(steps)
+        table = self.new_table()
+        _bin(table, [b for b in self.binned if b.step in wanted])
+        held = frozenset(b.step for b in self.binned if b.step in wanted)
+        return ReductionPartial(self.key, held, {"isotropic": table.partial()}, len(held))
+
+    def reduction(self, partial: ReductionPartial) -> Reduction:
+        """The reduction a (merged) partial of this session's frames finishes into: the table
+        :func:`reduce_session` gives for those frames, bit for bit."""
+        if partial.key != self.key:
+            raise SessionError("this partial belongs to another reduction (session, calibration "
+                               "or options differ): reduce its frames again")
+        table = self.new_table()
+        table.merge_partial(partial.tables["isotropic"])
+        return self.result(table)
+
+    def result(self, table: IsotropicTable) -> Reduction:
+        """The reduction that ``table`` (every sample binned) finishes."""
+        return Reduction(table, self.frames, self.references, self.drift_pct,
+                         time.monotonic() - self.t0, table.std_error**2,
+                         None if self.bundle is None else self.bundle.path)
 
 
 @dataclass(frozen=True)
 class _Sample:
     """One sample before binning: where it goes, where it lies, its value and noise terms."""
 
+    step: int
     bin_pose: Pose
     read_back: Pose
     joints: dict[str, float]
@@ -322,7 +408,7 @@ def _collect(poses: list[StepRecord], frames: _SessionFrames, brackets: dict[int
             when = frames.when[rec.step]
             ref = white.at(when)
             f = fs.signal / ref * (white.rho / np.pi) * (white.cos_ref / cos_i)
-            out.append(_Sample(geo.bin_pose(rec), read_back, rec.joints_read or rec.joints_cmd,
+            out.append(_Sample(rec.step, geo.bin_pose(rec), read_back, rec.joints_read or rec.joints_cmd,
                                f, f**2 * fs.variance / fs.signal**2,
                                np.abs(f) * np.sqrt(white.var_at(when)) / ref))
         if progress:
@@ -330,11 +416,25 @@ def _collect(poses: list[StepRecord], frames: _SessionFrames, brackets: dict[int
     return out
 
 
-def _bin_samples(table: IsotropicTable, samples: list[_Sample], rig: RigConfig,
-                 geo: SampleGeometry) -> None:
-    """Bin the samples with their budget: the noise and white-reference terms, and where the
-    rig states backlash or position noise, or a geometric calibration is applied, the angular
-    terms (:mod:`acquisition.reduction.angular`)."""
+@dataclass(frozen=True)
+class _Binned:
+    """One sample as the table bins it: its frame's step, bin pose, read-back pose, value
+    (sr⁻¹) and budget (independent variances, correlated standard uncertainties)."""
+
+    step: int
+    bin_pose: Pose
+    read_back: Pose
+    value: np.ndarray
+    variances: dict[str, np.ndarray]
+    uncertainties: dict[str, np.ndarray]
+
+
+def _budget(samples: list[_Sample], rig: RigConfig, geo: SampleGeometry
+            ) -> tuple[dict[str, str], dict[str, str], list[_Binned]]:
+    """(independent terms, correlated terms, each sample with its budget): the noise and
+    white-reference terms, and where the rig states backlash or position noise, or a geometric
+    calibration is applied, the angular terms (:mod:`acquisition.reduction.angular`, over all
+    samples)."""
     sources = AngularSources.of(rig, geo.kinematics, geo.alignment)
     independent, correlated = dict(UNCERTAINTY_TERMS[0]), dict(UNCERTAINTY_TERMS[1])
     for on, term, where in ((sources.independent, ANGULAR_TERM, independent),
@@ -342,12 +442,12 @@ def _bin_samples(table: IsotropicTable, samples: list[_Sample], rig: RigConfig,
                             (sources.correlated, CALIBRATION_TERM, correlated)):
         if on:
             where.update(term)
-    table.track_uncertainty(independent, correlated)
     names = geo.kinematics.joint_names
     joints = np.array([[s.joints[n] for n in names] for s in samples]).reshape(-1, len(names))
     claimed = np.array([s.read_back.as_tuple() for s in samples]).reshape(-1, 3)
     values = np.array([s.value for s in samples]).reshape(-1, 3)
     ang = angular_terms(sources, geo.kinematics, geo.base, joints, claimed, values)
+    out = []
     for k, s in enumerate(samples):
         variances = {"noise": s.noise_var[None, :]}
         uncertainties = {"white_reference": s.white_u[None, :]}
@@ -359,13 +459,18 @@ def _bin_samples(table: IsotropicTable, samples: list[_Sample], rig: RigConfig,
                                         * value)[None, :] ** 2
         if sources.correlated:
             uncertainties["geometry_calibration"] = ang.calibration[k][None, :]
-        p, r = s.bin_pose, s.read_back
+        out.append(_Binned(s.step, s.bin_pose, s.read_back, value, variances, uncertainties))
+    return independent, correlated, out
+
+
+def _bin(table: IsotropicTable, binned: list[_Binned]) -> None:
+    """Bin each sample at its bin pose, with its read-back angles and budget."""
+    for b in binned:
+        p, r = b.bin_pose, b.read_back
         table.add(np.array([p.theta_i]), np.array([p.theta_r]), np.array([p.delta_phi]),
-                  value[None, :], at=(np.array([r.theta_i]), np.array([r.theta_r]),
+                  b.value[None, :], at=(np.array([r.theta_i]), np.array([r.theta_r]),
                                         np.array([r.delta_phi])),
-                  variances=variances, uncertainties=uncertainties)
-    if geo.alignment is not None:
-        table.provenance["geometry_calibration"] = geo.alignment.to_dict()
+                  variances=b.variances, uncertainties=b.uncertainties)
 
 
 def _reference_cos(geo: SampleGeometry, records: list[StepRecord], rig: RigConfig) -> float:

@@ -1,5 +1,6 @@
-"""BRDF tables: streaming binning into isotropic (θi, θr, Δφ) and MERL half/difference grids,
-binning kernels, HDF5 files.
+"""BRDF tables: streaming binning into isotropic (θi, θr, Δφ) and MERL half/difference grids
+with exact (fixed-point) per-bin sums, binning kernels, partial tables that merge in any
+grouping, HDF5 files.
 
 May import: ``acquisition.geometry``, ``drivers.errors``, ``drivers.storage``.
 """

@@ -1,27 +1,38 @@
-"""Streaming per-bin statistics: count, sum and sum of squares per channel.
+"""Streaming per-bin statistics: count, Σx and Σx² per channel, summed exactly.
 
-A session never holds all its samples: each batch is reduced into the three running arrays and
-then dropped. Both backends add the samples one by one in sample order (``np.add.at``, or the
-numba loop), each x² rounded once before it is added, so a table is bit-identical whatever the
-backend and however the samples were split into batches; another sample order changes the sums
-by rounding only. Two accumulators merge by adding their arrays.
+A session never holds all its samples: each batch is added into the running sums and then
+dropped. The sums are exact (fixed-point integers, :mod:`acquisition.tables.fixedpoint`) and
+stored for the bins that hold samples (:class:`~acquisition.tables.exact.ExactSums`): each x
+and each x² (rounded once, as a float64) is converted exactly, sums are integer additions, and
+each is rounded to float64 once when read. So a table is bit-identical whatever the backend,
+however the samples were split into batches, in whatever order and grouping they were added
+or merged (:meth:`BinAccumulator.partial`, :meth:`BinAccumulator.merge_partial`).
+
+Sample values must have |x| < 2^20 ≈ 1.05e6 (sr⁻¹ in a BRDF table), so that x² < 2^40; a
+larger finite value raises :class:`~acquisition.tables.fixedpoint.OutOfRangeError` before the
+sums change.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
-from acquisition.tables.backend import kernels, resolve_backend
+from acquisition.tables.backend import resolve_backend
+from acquisition.tables.exact import ExactSums, SparseSums, largest_finite
+from acquisition.tables.fixedpoint import check_range, limbs_first
 from drivers.errors import ConfigError
 
 DROP_OUT_OF_RANGE = -1
 """Flat index marking a sample outside the table (dropped, counted in ``n_dropped_range``)."""
 DROP_NAN = -2
 """Flat index marking a sample with a NaN coordinate (dropped, counted in ``n_dropped_nan``)."""
+SAMPLE_LIMIT = 2.0**20
+"""Largest |value| (exclusive) of a sample: its square stays below the fixed-point range."""
+CHUNK = 1 << 16
+"""Samples indexed per step by :meth:`BinAccumulator.add_indexed` (buffers stay cache-sized)."""
 
 
 class BinAccumulator:
@@ -51,16 +62,17 @@ class BinAccumulator:
         self.shape = tuple(int(s) for s in shape)
         self.channels = int(channels)
         self.n_bins = math.prod(self.shape)
-        self._count = np.zeros(self.n_bins, dtype=np.int64)
-        # (channels, bins): each channel's bincount result adds to a contiguous row.
-        self._sum = np.zeros((self.channels, self.n_bins), dtype=np.float64)
-        self._sumsq = np.zeros((self.channels, self.n_bins), dtype=np.float64)
+        self._sums = ExactSums(self.n_bins, 2 * self.channels, backend=self.backend,
+                               capacity=min(self.n_bins, 1 << 16))
         self.n_dropped_nan = 0
         self.n_dropped_range = 0
+        self._factor: np.ndarray | None = None
+        """Per-bin factor (n_bins, channels) applied when the sums are read (:meth:`scale`)."""
 
     # ------------------------------------------------------------------ accumulation
     def add_flat(
-        self, flat_index: np.ndarray, values: np.ndarray, *, index_valid: bool = False
+        self, flat_index: np.ndarray, values: np.ndarray, *, index_valid: bool = False,
+        checked: bool = False,
     ) -> int:
         """Add samples by flat bin index; returns how many were kept.
 
@@ -72,18 +84,19 @@ class BinAccumulator:
             (N, channels) sample values.
         index_valid
             The caller guarantees every index lies in [0, n_bins) (skips that check).
+        checked
+            The caller has checked the values' range (:meth:`check_values`).
         """
         idx = np.asarray(flat_index).reshape(-1)
         vals = np.asarray(values, dtype=np.float64).reshape(idx.size, self.channels)
         if idx.size == 0:
             return 0
+        if not checked:
+            self.check_values(vals)
         if self.backend == "numba":
-            return self.add_with(
-                kernels().accumulate_flat, np.ascontiguousarray(idx, dtype=np.int64), vals
-            )
+            return self._add_compiled(np.ascontiguousarray(idx, np.int64), vals)
         if idx.dtype != np.intp:
             idx = idx.astype(np.intp)
-        # Fast path: reductions only (no per-sample temporaries) when every sample is good.
         with np.errstate(over="ignore", invalid="ignore"):
             all_finite = bool(np.isfinite(vals.sum()))
         if all_finite and (index_valid or (idx.min() >= 0 and idx.max() < self.n_bins)):
@@ -99,37 +112,55 @@ class BinAccumulator:
         self._accumulate(idx[keep], vals[keep])
         return int(np.count_nonzero(keep))
 
-    def add_with(self, kernel: Callable[..., tuple[int, int, int]], *args: Any) -> int:
-        """Run a compiled binning ``kernel(*args, count, sums, sumsq)`` on this accumulator's
-        arrays and record its drops; returns the number of samples kept.
+    def add_indexed(self, values: np.ndarray,
+                    fill: Callable[[int, int, np.ndarray], bool | None]) -> int:
+        """Add (N, channels) ``values`` whose bins a table computes chunk by chunk:
+        ``fill(a, b, flat)`` writes the flat indices of samples [a, b) into ``flat`` (and may
+        say whether all are known valid). Every value is checked first, so an out-of-range one
+        changes nothing; index buffers stay cache-sized (:data:`CHUNK`). Returns the number
+        kept."""
+        vals = np.asarray(values, dtype=np.float64).reshape(-1, self.channels)
+        self.check_values(vals)
+        n = vals.shape[0]
+        buf = np.empty(min(CHUNK, n), dtype=np.int64)
+        kept = 0
+        for a in range(0, n, CHUNK):
+            b = min(a + CHUNK, n)
+            flat = buf[: b - a]
+            valid = bool(fill(a, b, flat))
+            kept += self.add_flat(flat, vals[a:b], index_valid=valid, checked=True)
+        return kept
 
-        ``args`` are the kernel's inputs (per-sample arrays, the (N, channels) values, table
-        parameters); arrays are made C-contiguous so each kernel compiles once.
-        """
-        arrays = [np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a for a in args]
-        kept, n_nan, n_range = kernel(*arrays, self._count, self._sum, self._sumsq)
-        self.n_dropped_nan += int(n_nan)
-        self.n_dropped_range += int(n_range)
-        return int(kept)
+    def _add_compiled(self, idx: np.ndarray, vals: np.ndarray) -> int:
+        """numba path of :meth:`add_flat` (:func:`acquisition.tables.exact_kernels.add_flat`);
+        records the drops, returns the number kept."""
+        from acquisition.tables import exact_kernels
+
+        tally = np.zeros(4, np.int64)
+        self._sums.run_kernel(exact_kernels.add_flat, (idx, np.ascontiguousarray(vals)),
+                              idx.size, tally)
+        self.n_dropped_nan += int(tally[1])
+        self.n_dropped_range += int(tally[2])
+        return int(tally[0])
+
+    def check_values(self, values: np.ndarray) -> None:
+        """Raise :class:`~acquisition.tables.fixedpoint.OutOfRangeError` when a finite sample
+        value has |x| ≥ 2^20 (what :meth:`add_flat` and :meth:`add_with` refuse)."""
+        vals = np.ascontiguousarray(values, dtype=np.float64).reshape(-1, self.channels)
+        self._check_values(vals, largest_finite(vals, self.backend))
+
+    @staticmethod
+    def _check_values(vals: np.ndarray, largest: float | None = None) -> None:
+        check_range(vals, SAMPLE_LIMIT, "sample value", " sr⁻¹", largest)
 
     def _accumulate(self, idx: np.ndarray, vals: np.ndarray) -> None:
-        """Add in-range, finite samples (no checks).
+        """numpy path: add in-range, finite samples (no checks): x then x² per channel, as
+        limbs, with ``np.add.at`` (the numba kernel adds the same integers)."""
+        def limbs_of(a: int, b: int) -> np.ndarray:
+            v = vals[a:b]
+            return limbs_first(np.concatenate([v, v * v], axis=1))
 
-        ``np.add.at`` (unbuffered scatter-add, in sample order) rather than ``np.bincount``:
-        same speed per sample, without allocating a table-sized result per call, so small
-        batches into the 1.46 M-bin MERL table stay cheap; and the sums are those of the numba
-        loop, bit for bit, whatever the batch split (bincount's would depend on it).
-        """
-        np.add.at(self._count, idx, 1)
-        # Channel-first contiguous copy: add.at is ~2.5x faster on contiguous weights. Always a
-        # copy (it is squared in place below; ascontiguousarray would return the caller's
-        # array itself for a single sample or a single channel).
-        vt = np.array(vals.T, order="C")
-        for c in range(self.channels):
-            v = vt[c]
-            np.add.at(self._sum[c], idx, v)
-            np.multiply(v, v, out=v)
-            np.add.at(self._sumsq[c], idx, v)
+        self._sums.add_limbs(np.asarray(idx, np.intp), limbs_of)
 
     # ------------------------------------------------------------------ merging
     def _check_compatible(self, other: BinAccumulator) -> None:
@@ -139,78 +170,142 @@ class BinAccumulator:
                 f"{other.shape}x{other.channels}: bin them with the same edges"
             )
 
+    def partial(self) -> SparseSums:
+        """The canonical exact sums (count, Σx, Σx² of the bins touched): a partial table."""
+        self._refuse_if_scaled("take a partial of")
+        return self._sums.sparse()
+
+    def merge_partial(self, part: SparseSums, dropped: tuple[int, int] = (0, 0)) -> None:
+        """Add a partial's sums and its (NaN, out-of-range) drop tallies."""
+        self._refuse_if_scaled("merge into")
+        self._sums.merge(part)
+        self.n_dropped_nan += int(dropped[0])
+        self.n_dropped_range += int(dropped[1])
+
     def merge_from(self, other: BinAccumulator) -> None:
         """Add ``other``'s statistics into this accumulator (in place)."""
         self._check_compatible(other)
-        self._count += other._count
-        self._sum += other._sum
-        self._sumsq += other._sumsq
-        self.n_dropped_nan += other.n_dropped_nan
-        self.n_dropped_range += other.n_dropped_range
+        self.merge_partial(other.partial(), (other.n_dropped_nan, other.n_dropped_range))
 
     def copy(self) -> BinAccumulator:
-        """Independent copy (same backend)."""
+        """Independent copy (same backend, same read-out factor)."""
         new = BinAccumulator(self.shape, self.channels, backend=self.backend)
-        new.merge_from(self)
+        new._sums.merge(self._sums.sparse())
+        new.n_dropped_nan, new.n_dropped_range = self.n_dropped_nan, self.n_dropped_range
+        new._factor = None if self._factor is None else self._factor.copy()
         return new
 
     def pool_from(self, other: BinAccumulator, pool: Callable[[np.ndarray], np.ndarray]) -> None:
         """Replace this accumulator's statistics by ``pool`` of ``other``'s (drops copied).
 
-        ``pool`` gets each of ``other``'s arrays shaped ``shape`` (count) or
-        ``(channels,) + shape`` (Σx, Σx²), so it should index bin axes from the end
-        (``x[..., k]``); it returns a new array of the same shape.
+        ``pool`` gets each of ``other``'s arrays shaped ``shape`` (count) or ``(k,) + shape``
+        (the exact sums' limbs), so it should index bin axes from the end (``x[..., k]``) and
+        only add and copy entries; it returns a new array of the same shape.
         """
         self._check_compatible(other)
-        c, shp = self.channels, self.shape
-        self._count[:] = pool(other._count.reshape(shp)).reshape(-1)
-        self._sum[:] = pool(other._sum.reshape(c, *shp)).reshape(c, -1)
-        self._sumsq[:] = pool(other._sumsq.reshape(c, *shp)).reshape(c, -1)
+        count, limbs = other._sums.dense_limbs()
+        k = limbs.shape[0] * limbs.shape[1]
+        pooled = pool(limbs.reshape(k, *self.shape)).reshape(limbs.shape)
+        self._sums = ExactSums.from_dense(pool(count.reshape(self.shape)), limbs=pooled,
+                                          backend=self.backend)
         self.n_dropped_nan = other.n_dropped_nan
         self.n_dropped_range = other.n_dropped_range
 
     def scale(self, factor: np.ndarray) -> None:
-        """Multiply every sample of each bin by ``factor`` (n_bins, channels): Σx by it, Σx²
-        by its square."""
-        f = np.asarray(factor, dtype=np.float64).reshape(self.n_bins, self.channels).T
-        self._sum *= f
-        self._sumsq *= f * f
+        """Multiply every sample of each bin by ``factor`` (n_bins, channels) — Σx by it, Σx²
+        by its square — as the sums are read: a correction known once every sample is in. The
+        exact sums stay as added, so a scaled accumulator takes no more partials and gives none.
+        """
+        f = np.asarray(factor, dtype=np.float64).reshape(self.n_bins, self.channels)
+        self._factor = f.copy() if self._factor is None else self._factor * f
+
+    def _refuse_if_scaled(self, what: str) -> None:
+        if self._factor is not None:
+            raise ConfigError(f"cannot {what} a table whose bins were scaled (a finished "
+                              "table): merge the partials before correcting the bins")
+
+    def _touched(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(bins, counts, sums (2·channels, u)) of the touched bins, read-out factor applied."""
+        bins, n, sums = self._sums.touched()
+        if self._factor is not None:
+            f = self._factor[bins].T
+            sums = np.concatenate([sums[: self.channels] * f, sums[self.channels:] * f * f])
+        return bins, n, sums
 
     # ------------------------------------------------------------------ statistics
     @property
+    def n_samples(self) -> int:
+        """Samples added."""
+        return int(self._sums.count[: self._sums.n_used].sum())
+
+    @property
+    def _count(self) -> np.ndarray:
+        """Samples per flat bin, int64 (n_bins,)."""
+        bins, n, _ = self._sums.touched()
+        out = np.zeros(self.n_bins, np.int64)
+        out[bins] = n
+        return out
+
+    def _dense_sums(self) -> np.ndarray:
+        """Σx then Σx² per channel and flat bin, (2·channels, n_bins), read-out factor applied."""
+        bins, _, sums = self._touched()
+        out = np.zeros((2 * self.channels, self.n_bins))
+        out[:, bins] = sums
+        return out
+
+    @property
+    def _sum(self) -> np.ndarray:
+        """Σx per channel and flat bin, (channels, n_bins), each rounded once."""
+        return self._dense_sums()[: self.channels]
+
+    @property
+    def _sumsq(self) -> np.ndarray:
+        """Σx² per channel and flat bin, (channels, n_bins), each rounded once."""
+        return self._dense_sums()[self.channels:]
+
+    @property
     def count(self) -> np.ndarray:
         """Samples per bin, int64, ``shape``."""
-        return self._count.reshape(self.shape).copy()
+        return self._count.reshape(self.shape)
 
     @property
     def sum(self) -> np.ndarray:
         """Σx per bin, float64, ``shape + (channels,)``."""
-        return np.moveaxis(self._sum, 0, -1).reshape(*self.shape, self.channels).copy()
+        return self._spread(lambda n, s: s[: self.channels], 0.0)
 
     @property
     def sum_of_squares(self) -> np.ndarray:
         """Σx² per bin, float64, ``shape + (channels,)``."""
-        return np.moveaxis(self._sumsq, 0, -1).reshape(*self.shape, self.channels).copy()
+        return self._spread(lambda n, s: s[self.channels:], 0.0)
+
+    def _spread(self, per_bin: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                empty: float) -> np.ndarray:
+        """``per_bin(count (u,), sums (2·channels, u))`` → (channels, u) over the touched bins,
+        spread over ``shape + (channels,)`` with ``empty`` elsewhere (no grid-sized sums)."""
+        bins, n, sums = self._touched()
+        out = np.full((self.n_bins, self.channels), empty)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[bins] = per_bin(n.astype(np.float64), sums).T
+        return out.reshape(*self.shape, self.channels)
 
     def mean(self) -> np.ndarray:
         """Mean per bin and channel, ``shape + (channels,)``; NaN where the bin is empty."""
-        n = self._count.astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = self._sum / n
-        m[:, self._count == 0] = np.nan
-        return np.moveaxis(m, 0, -1).reshape(*self.shape, self.channels)
+        return self._spread(lambda n, s: s[: self.channels] / n, np.nan)
 
     def variance(self) -> np.ndarray:
         """Unbiased sample variance (ddof = 1) per bin; NaN where count < 2.
 
-        Computed as (Σx² − (Σx)²/n) / (n − 1), clipped at 0 against rounding.
+        Computed as (Σx² − (Σx)²/n) / (n − 1) from the rounded sums, clipped at 0 against
+        rounding.
         """
-        n = self._count.astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            v = (self._sumsq - self._sum * self._sum / n) / (n - 1.0)
-        np.maximum(v, 0.0, out=v)
-        v[:, self._count < 2] = np.nan
-        return np.moveaxis(v, 0, -1).reshape(*self.shape, self.channels)
+        c = self.channels
+
+        def var(n: np.ndarray, s: np.ndarray) -> np.ndarray:
+            v = np.maximum((s[c:] - s[:c] * s[:c] / n) / (n - 1.0), 0.0)
+            v[:, n < 2] = np.nan
+            return v
+
+        return self._spread(var, np.nan)
 
     @classmethod
     def from_statistics(
@@ -223,7 +318,8 @@ class BinAccumulator:
     ) -> BinAccumulator:
         """Rebuild running sums from stored count, mean and variance (inverse of the above).
 
-        Bins with count 0 get zero sums; bins with count 1 (variance NaN) get Σx² = x².
+        Bins with count 0 get zero sums; bins with count 1 (variance NaN) get Σx² = x². The
+        float sums m·n and v·(n − 1) + n·m² are then held exactly.
         """
         count = np.asarray(count, dtype=np.int64)
         acc = cls(count.shape, np.shape(mean)[-1], backend=backend)
@@ -232,9 +328,8 @@ class BinAccumulator:
         v = np.moveaxis(np.asarray(variance, dtype=np.float64).reshape(-1, acc.channels), 0, -1)
         m = np.where(n > 0, m, 0.0)
         v = np.where(n > 1, v, 0.0)
-        acc._count[:] = count.reshape(-1)
-        acc._sum[:] = m * n
-        acc._sumsq[:] = v * np.maximum(n - 1.0, 0.0) + n * m * m
+        sums = np.concatenate([m * n, v * np.maximum(n - 1.0, 0.0) + n * m * m])
+        acc._sums = ExactSums.from_dense(count.reshape(-1), sums, backend=acc.backend)
         return acc
 
 
@@ -277,7 +372,7 @@ class TableStatistics:
     @property
     def n_samples(self) -> int:
         """Samples binned so far."""
-        return int(self._acc._count.sum())
+        return self._acc.n_samples
 
     @property
     def n_dropped_nan(self) -> int:

@@ -26,3 +26,10 @@ def wrap_delta_phi(delta_phi_deg: np.ndarray | float, start_deg: float = -180.0)
 def as_flat_float64(*values: np.ndarray | float) -> tuple[np.ndarray, ...]:
     """Broadcast the inputs against each other; each comes back as a 1-D float64 array."""
     return tuple(np.asarray(v, dtype=np.float64).reshape(-1) for v in np.broadcast_arrays(*values))
+
+
+def contiguous(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each array C-contiguous and writeable (copied only where needed), as the compiled
+    kernels take them: each kernel then compiles once, whatever the callers pass."""
+    return tuple(a if a.flags.c_contiguous and a.flags.writeable else np.array(a, order="C")
+                 for a in arrays)

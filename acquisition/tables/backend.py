@@ -2,9 +2,10 @@
 
 Both give bit-identical tables: the same bin for every sample (the MERL reference reader's,
 computed with libm's sin/cos/acos/atan2 in IEEE double, see :mod:`acquisition.geometry.halfdiff`), the
-same counts, sums and sums of squares (added in sample order) and the same drop tallies, on any
-CPU and whatever the batch split (see :mod:`acquisition.tables.kernels`). ``numba`` is the
-default and 1.4–4× faster (``bench/binning.py``); ``numpy`` is the reference fallback. Pick
+same counts, exact sums and sums of squares (the same fixed-point integers,
+:mod:`acquisition.tables.fixedpoint`) and the same drop tallies, on any CPU and whatever the
+batch split or order (see :mod:`acquisition.tables.kernels`). ``numba`` is the default and
+several times faster (``bench/binning.py``); ``numpy`` is the reference fallback. Pick
 one per table (``backend=`` argument) or for the process with the environment variable
 ``GONIO_BINNING_BACKEND=numpy|numba``.
 

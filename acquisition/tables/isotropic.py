@@ -53,9 +53,10 @@ from acquisition.tables.accumulator import (
     BinAccumulator,
     TableStatistics,
 )
-from acquisition.tables.angles import as_flat_float64, fold_delta_phi, wrap_delta_phi
+from acquisition.tables.angles import as_flat_float64, contiguous, fold_delta_phi, wrap_delta_phi
 from acquisition.tables.backend import kernels
 from acquisition.tables.merl_table import MerlTable
+from acquisition.tables.partial import BudgetPartial, PartialError, TablePartial
 from acquisition.tables.uncertainty import (
     BINNING_DESCRIPTION,
     BINNING_TERM,
@@ -193,8 +194,24 @@ class IsotropicTable(TableStatistics):
         delta_phi_deg: np.ndarray | float,
     ) -> np.ndarray:
         """Flat C-order bin index per sample (the class's edge rule); −1 outside the table,
-        −2 for a NaN angle. What :meth:`add` bins, with either backend."""
+        −2 for a NaN angle. What :meth:`add` bins, with this table's backend (both give the
+        same indices)."""
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
+        out = np.empty(ti.size, np.int64)
+        self._index_into(ti, tr, dp, out)
+        return out
+
+    def _index_into(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`flat_index` of flat float64 angles into ``out``, with this table's backend."""
+        if self.backend == "numba":
+            kernels().iso_flat_index(*contiguous(ti, tr, dp), self.theta_i_edges,
+                                     self.theta_r_edges, self.delta_phi_edges,
+                                     bool(self.fold_delta_phi), out)
+        else:
+            out[:] = self._numpy_index(ti, tr, dp)
+
+    def _numpy_index(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray) -> np.ndarray:
+        """The numpy path of :meth:`flat_index`."""
         nan = np.isnan(ti) | np.isnan(tr) | np.isnan(dp)
         ii = axis_index(ti, self.theta_i_edges)
         ir = axis_index(tr, self.theta_r_edges)
@@ -238,20 +255,10 @@ class IsotropicTable(TableStatistics):
         self._stored = None
         self._stored_scatter = None
         if self._unc is not None:
+            self._acc.check_values(rgb)  # nothing changes unless everything fits
             self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
-        if self.backend == "numpy":
-            return self._acc.add_flat(self.flat_index(ti, tr, dp), rgb)
-        return self._acc.add_with(
-            kernels().iso_add,
-            ti,
-            tr,
-            dp,
-            rgb,
-            self.theta_i_edges,
-            self.theta_r_edges,
-            self.delta_phi_edges,
-            bool(self.fold_delta_phi),
-        )
+        return self._acc.add_indexed(
+            rgb, lambda a, b, flat: self._index_into(ti[a:b], tr[a:b], dp[a:b], flat))
 
     def track_uncertainty(self, independent: Mapping[str, str],
                           correlated: Mapping[str, str]) -> None:
@@ -260,7 +267,8 @@ class IsotropicTable(TableStatistics):
         (:mod:`acquisition.tables.uncertainty`). Call before the first :meth:`add`."""
         if self.n_samples:
             raise ConfigError("track_uncertainty must be called before samples are added")
-        self._unc = UncertaintySums(int(np.prod(self.shape)), independent, correlated)
+        self._unc = UncertaintySums(int(np.prod(self.shape)), independent, correlated,
+                                    backend=self.backend)
 
     def _add_uncertainty(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, rgb: np.ndarray,
                          at: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
@@ -290,6 +298,54 @@ class IsotropicTable(TableStatistics):
 
     def __add__(self, other: IsotropicTable) -> IsotropicTable:
         return self.merge(other)
+
+    # ------------------------------------------------------------------ partials
+    @property
+    def grid(self) -> dict[str, Any]:
+        """The bins: edges (degrees) and whether Δφ is folded."""
+        return {"theta_i_edges": self.theta_i_edges, "theta_r_edges": self.theta_r_edges,
+                "delta_phi_edges": self.delta_phi_edges,
+                "fold_delta_phi": bool(self.fold_delta_phi)}
+
+    def _budget_terms(self) -> tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]]:
+        """(independent, correlated) (name, description) pairs summed per sample."""
+        u = self._unc
+        if u is None:
+            return (), ()
+        return (tuple((k, u.descriptions[k]) for k in u.independent if k not in u._final),
+                tuple((k, u.descriptions[k]) for k in u.correlated))
+
+    def partial(self) -> TablePartial:
+        """This table's exact sums (and its budget's, terms set at the end excepted): merged
+        with other partials of the same grid, then :meth:`merge_partial` into a table, they
+        give the table of all their samples, bit for bit."""
+        budget = None
+        if self._unc is not None:
+            budget = BudgetPartial(*self._budget_terms(), self._unc.partial())
+        return TablePartial("isotropic", self._acc.partial(),
+                            (self.n_dropped_nan, self.n_dropped_range), self.grid, budget)
+
+    def merge_partial(self, part: TablePartial) -> None:
+        """Add a partial table's sums (same grid; its budget's terms those this table tracks,
+        or it tracks none and has no sample yet)."""
+        same_grid = all(np.array_equal(np.asarray(v), np.asarray(part.grid.get(k)))
+                        for k, v in self.grid.items())
+        if part.kind != "isotropic" or not same_grid:
+            raise PartialError(f"cannot merge a {part.kind} partial table of another grid into "
+                               "this isotropic table: bin both with the same edges")
+        budget = part.budget
+        if budget is not None and self._unc is None and not self.n_samples:
+            self.track_uncertainty(dict(budget.independent), dict(budget.correlated))
+        theirs = () if budget is None else (budget.independent, budget.correlated)
+        ours = () if self._unc is None else self._budget_terms()
+        if theirs != ours:
+            raise PartialError("cannot merge a partial table whose uncertainty terms differ "
+                               "from this table's")
+        self._stored = None
+        self._stored_scatter = None
+        self._acc.merge_partial(part.values, part.dropped)
+        if budget is not None and self._unc is not None:
+            self._unc.merge_partial(budget.sums)
 
     def fold_reciprocity(self) -> IsotropicTable:
         """New table pooling bins (θi, θr, Δφ) and (θr, θi, −Δφ) (Helmholtz reciprocity).

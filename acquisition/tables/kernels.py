@@ -1,8 +1,10 @@
-"""Numba kernels for binning: bin index and accumulation fused in one compiled pass.
+"""Numba kernels for binning: the flat bin index of every sample, in one compiled pass.
 
-Each kernel walks the samples in blocks of :data:`BLOCK`: it computes the block's flat bin
-indices into a small buffer (for (θh, θd, φd) given directly, a branch-free loop that LLVM
-vectorises), then adds 1 to the count and x, x² to the sums of every channel, in sample order.
+The tables compute a chunk's indices here (for (θh, θd, φd) given directly, a branch-free loop
+that LLVM vectorises), then add the chunk to their exact sums
+(:mod:`acquisition.tables.exact_kernels`). The two stay in separate compiled functions on
+purpose: numba's on-disk cache is invalidated by a change to a function's own file only, so a
+kernel that inlined code of another file could run stale machine code after an edit there.
 
 Bins are the reference reader's, bit for bit: the index uses the reference's arithmetic in IEEE
 double, operation for operation as :mod:`acquisition.geometry.halfdiff`, with ``math.sin``/``cos``/
@@ -16,12 +18,9 @@ reader call). Nothing may change that arithmetic, and this module enforces it:
   ``NUMBA_DISABLE_INTEL_SVML=1`` before importing numba and refuses to load if numba was
   already imported with SVML in use (that LLVM option cannot be undone in the process).
 
-So the numba and numpy backends give the same bins, the same counts, sums and sums of squares
-(added in the same order, each x² rounded once) and the same drop tallies, bit for bit, on any
-x86-64 CPU and whatever the batch split.
-
-Arrays are passed as the accumulator holds them: ``count`` int64 (bins,), ``sums`` and
-``sumsq`` float64 (channels, bins). Every kernel returns ``(kept, n_nan, n_range)``.
+So the numba and numpy backends give the same bins, the same counts, exact sums and sums of
+squares (each x² rounded once, then held exactly) and the same drop tallies, bit for bit, on any
+x86-64 CPU and whatever the batch split or order.
 
 The kernels release the GIL (``nogil``): threads may bin concurrently into *separate* tables
 (merge them afterwards); two threads must never write into the same table at once. Compiled
@@ -58,75 +57,6 @@ _NP = float(PHI_D_BINS)
 
 # Every kernel: exact IEEE arithmetic (no fast-math); x/0 → inf/NaN rather than an exception.
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
-
-
-# ---------------------------------------------------------------------------- accumulation
-BLOCK = 1024
-"""Samples indexed per step before they are accumulated (the index buffer stays in L1)."""
-
-
-@njit(**_JIT)
-def _accumulate_block(idx, vals, start, count, sums, sumsq, tally):  # pragma: no cover
-    """Add samples ``start + j`` of ``vals`` to bins ``idx[j]``; tally kept/NaN/out of range.
-
-    A sample is NaN when its index is DROP_NAN or its channel sum is not finite (the numpy
-    path's row-sum test), out of range for any other index outside [0, bins). Three channels
-    are written out (numba does not unroll the general channel loop; ~3× faster).
-    """
-    n_bins = count.size
-    kept = 0
-    n_nan = 0
-    n_range = 0
-    if vals.shape[1] == 3:
-        for j in range(idx.size):
-            b = idx[j]
-            i = start + j
-            r = vals[i, 0]
-            g = vals[i, 1]
-            u = vals[i, 2]
-            if b == DROP_NAN or not math.isfinite(r + g + u):
-                n_nan += 1
-            elif b < 0 or b >= n_bins:
-                n_range += 1
-            else:
-                count[b] += 1
-                sums[0, b] += r
-                sums[1, b] += g
-                sums[2, b] += u
-                sumsq[0, b] += r * r
-                sumsq[1, b] += g * g
-                sumsq[2, b] += u * u
-                kept += 1
-    else:
-        channels = vals.shape[1]
-        for j in range(idx.size):
-            b = idx[j]
-            i = start + j
-            total = 0.0
-            for c in range(channels):
-                total += vals[i, c]
-            if b == DROP_NAN or not math.isfinite(total):
-                n_nan += 1
-            elif b < 0 or b >= n_bins:
-                n_range += 1
-            else:
-                count[b] += 1
-                for c in range(channels):
-                    v = vals[i, c]
-                    sums[c, b] += v
-                    sumsq[c, b] += v * v
-                kept += 1
-    tally[0] += kept
-    tally[1] += n_nan
-    tally[2] += n_range
-
-
-@njit(**_JIT)
-def accumulate_flat(idx, vals, count, sums, sumsq):  # pragma: no cover - compiled
-    """Add samples by precomputed flat index (negative = drop); returns (kept, nan, range)."""
-    tally = np.zeros(3, dtype=np.int64)
-    _accumulate_block(idx, vals, 0, count, sums, sumsq, tally)
-    return tally[0], tally[1], tally[2]
 
 
 # ---------------------------------------------------------------------------- MERL indices
@@ -273,46 +203,6 @@ def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def merl_add_halfdiff_deg(th, td, pd, vals, count, sums, sumsq):  # pragma: no cover - compiled
-    """Bin samples at (θh, θd, φd) in degrees (converted like ``np.radians``, then binned with
-    the reference's arithmetic) into a MERL table; returns (kept, nan, range)."""
-    tally = np.zeros(3, dtype=np.int64)
-    buf = np.empty(min(BLOCK, th.size), dtype=np.int64)
-    for a in range(0, th.size, BLOCK):
-        m = min(BLOCK, th.size - a)
-        _merl_block(th, td, pd, a, buf[:m], _DEG2RAD)
-        _accumulate_block(buf[:m], vals, a, count, sums, sumsq, tally)
-    return tally[0], tally[1], tally[2]
-
-
-@njit(**_JIT)
-def merl_add_vectors(wi, wo, vals, count, sums, sumsq):  # pragma: no cover - compiled
-    """Bin samples given light/view vectors (N, 3); returns (kept, nan, range)."""
-    tally = np.zeros(3, dtype=np.int64)
-    n = wi.shape[0]
-    buf = np.empty(min(BLOCK, n), dtype=np.int64)
-    for a in range(0, n, BLOCK):
-        m = min(BLOCK, n - a)
-        for j in range(m):
-            buf[j] = _merl_flat_vectors(wi, wo, a + j)
-        _accumulate_block(buf[:m], vals, a, count, sums, sumsq, tally)
-    return tally[0], tally[1], tally[2]
-
-
-@njit(**_JIT)
-def merl_add_angles(ti, tr, dp, vals, count, sums, sumsq):  # pragma: no cover - compiled
-    """Bin samples at isotropic (θi, θr, Δφ) in degrees; returns (kept, nan, range)."""
-    tally = np.zeros(3, dtype=np.int64)
-    buf = np.empty(min(BLOCK, ti.size), dtype=np.int64)
-    for a in range(0, ti.size, BLOCK):
-        m = min(BLOCK, ti.size - a)
-        for j in range(m):
-            buf[j] = _merl_flat_angles(ti[a + j], tr[a + j], dp[a + j])
-        _accumulate_block(buf[:m], vals, a, count, sums, sumsq, tally)
-    return tally[0], tally[1], tally[2]
-
-
-@njit(**_JIT)
 def merl_flat_index_vectors(wi, wo, out):  # pragma: no cover - compiled
     """Flat MERL index per light/view pair into ``out`` (what :func:`merl_add_vectors` bins)."""
     for i in range(wi.shape[0]):
@@ -369,21 +259,6 @@ def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compil
     if ii < 0 or ir < 0 or ip < 0:
         return DROP_OUT_OF_RANGE
     return (ii * (er.size - 1) + ir) * (ep.size - 1) + ip
-
-
-@njit(**_JIT)
-def iso_add(ti, tr, dp, vals, ei, er, ep, fold, count, sums, sumsq):  # pragma: no cover
-    """Bin samples at (θi, θr, Δφ) in degrees into an isotropic table with the given edges
-    (Δφ folded into [0, 180] or wrapped from ``ep[0]``); returns (kept, nan, range)."""
-    tally = np.zeros(3, dtype=np.int64)
-    start = ep[0]
-    buf = np.empty(min(BLOCK, ti.size), dtype=np.int64)
-    for a in range(0, ti.size, BLOCK):
-        m = min(BLOCK, ti.size - a)
-        for j in range(m):
-            buf[j] = _iso_flat(ti[a + j], tr[a + j], dp[a + j], ei, er, ep, fold, start)
-        _accumulate_block(buf[:m], vals, a, count, sums, sumsq, tally)
-    return tally[0], tally[1], tally[2]
 
 
 @njit(**_JIT)

@@ -19,17 +19,16 @@ from acquisition.geometry.halfdiff import (
     merl_bin_edges,
 )
 from acquisition.tables.accumulator import (
+    CHUNK,
     DROP_NAN,
     DROP_OUT_OF_RANGE,
     BinAccumulator,
     TableStatistics,
 )
-from acquisition.tables.angles import as_flat_float64
+from acquisition.tables.angles import as_flat_float64, contiguous
 from acquisition.tables.backend import kernels
+from acquisition.tables.partial import PartialError, TablePartial
 from drivers.errors import ConfigError
-
-CHUNK = 1 << 16
-"""Samples converted per step: temporaries stay cache-sized whatever the batch size."""
 
 # The index codes of acquisition.geometry.halfdiff are the accumulator's drop codes.
 assert (NAN_INDEX, OUT_OF_RANGE_INDEX) == (DROP_NAN, DROP_OUT_OF_RANGE)
@@ -71,8 +70,9 @@ class MerlTable(TableStatistics):
         wi, wo = _as_vectors(wi, wo)
         rgb = _as_rgb(rgb, wi.shape[0])
         if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_vectors, wi, wo, rgb)
-        return self._add_chunked(rgb, lambda a, b, flat: _index_vectors(wi[a:b], wo[a:b], flat))
+            index, (wi, wo) = kernels().merl_flat_index_vectors, contiguous(wi, wo)
+            return self._acc.add_indexed(rgb, lambda a, b, flat: index(wi[a:b], wo[a:b], flat))
+        return self._acc.add_indexed(rgb, lambda a, b, flat: _index_vectors(wi[a:b], wo[a:b], flat))
 
     def add_angles(
         self,
@@ -90,11 +90,9 @@ class MerlTable(TableStatistics):
         """
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         rgb = _as_rgb(rgb, ti.size)
-        if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_angles, ti, tr, dp, rgb)
-        return self._add_chunked(
-            rgb, lambda a, b, flat: _index_angles(ti[a:b], tr[a:b], dp[a:b], flat)
-        )
+        fill = kernels().merl_flat_index_angles if self.backend == "numba" else _index_angles
+        ti, tr, dp = contiguous(ti, tr, dp)
+        return self._acc.add_indexed(rgb, lambda a, b, flat: fill(ti[a:b], tr[a:b], dp[a:b], flat))
 
     def add_halfdiff(
         self,
@@ -112,24 +110,9 @@ class MerlTable(TableStatistics):
         """
         th, td, pd = as_flat_float64(theta_h_deg, theta_d_deg, phi_d_deg)
         rgb = _as_rgb(rgb, th.size)
-        if self.backend == "numba":
-            return self._acc.add_with(kernels().merl_add_halfdiff_deg, th, td, pd, rgb)
-        return self._add_chunked(
-            rgb, lambda a, b, flat: _index_halfdiff(th[a:b], td[a:b], pd[a:b], flat)
-        )
-
-    def _add_chunked(self, rgb: np.ndarray, fill: Callable[[int, int, np.ndarray], bool]) -> int:
-        """numpy path: per chunk [a, b), ``fill(a, b, flat)`` writes the flat indices and says
-        whether all are known valid; the chunk is then accumulated. Returns the number kept."""
-        n = rgb.shape[0]
-        idx = np.empty(min(CHUNK, n), dtype=np.int64)
-        kept = 0
-        for a in range(0, n, CHUNK):
-            b = min(a + CHUNK, n)
-            flat = idx[: b - a]
-            valid = fill(a, b, flat)
-            kept += self._acc.add_flat(flat, rgb[a:b], index_valid=valid)
-        return kept
+        fill = kernels().merl_flat_index_deg if self.backend == "numba" else _index_halfdiff
+        th, td, pd = contiguous(th, td, pd)
+        return self._acc.add_indexed(rgb, lambda a, b, flat: fill(th[a:b], td[a:b], pd[a:b], flat))
 
     # ------------------------------------------------------------------ bin of each sample
     def flat_index_vectors(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -138,7 +121,7 @@ class MerlTable(TableStatistics):
         wi, wo = _as_vectors(wi, wo)
         if self.backend == "numba":
             out = np.empty(wi.shape[0], dtype=np.int64)
-            kernels().merl_flat_index_vectors(*map(np.ascontiguousarray, (wi, wo)), out)
+            kernels().merl_flat_index_vectors(*contiguous(wi, wo), out)
             return out
         return _index_chunked(wi.shape[0], lambda a, b, f: _index_vectors(wi[a:b], wo[a:b], f))
 
@@ -152,7 +135,7 @@ class MerlTable(TableStatistics):
         ti, tr, dp = as_flat_float64(theta_i_deg, theta_r_deg, delta_phi_deg)
         if self.backend == "numba":
             out = np.empty(ti.size, dtype=np.int64)
-            kernels().merl_flat_index_angles(*map(np.ascontiguousarray, (ti, tr, dp)), out)
+            kernels().merl_flat_index_angles(*contiguous(ti, tr, dp), out)
             return out
         return _index_chunked(ti.size, lambda a, b, f: _index_angles(ti[a:b], tr[a:b], dp[a:b], f))
 
@@ -166,7 +149,7 @@ class MerlTable(TableStatistics):
         th, td, pd = as_flat_float64(theta_h_deg, theta_d_deg, phi_d_deg)
         if self.backend == "numba":
             out = np.empty(th.size, dtype=np.int64)
-            kernels().merl_flat_index_deg(*map(np.ascontiguousarray, (th, td, pd)), out)
+            kernels().merl_flat_index_deg(*contiguous(th, td, pd), out)
             return out
         return _index_chunked(th.size, lambda a, b, f: _index_halfdiff(th[a:b], td[a:b], pd[a:b], f))
 
@@ -185,6 +168,16 @@ class MerlTable(TableStatistics):
 
     def __add__(self, other: MerlTable) -> MerlTable:
         return self.merge(other)
+
+    def partial(self) -> TablePartial:
+        """This table's exact sums (a partial table: see :mod:`acquisition.tables.partial`)."""
+        return TablePartial("merl", self._acc.partial(), (self.n_dropped_nan, self.n_dropped_range))
+
+    def merge_partial(self, part: TablePartial) -> None:
+        """Add a partial MERL table's sums."""
+        if part.kind != "merl":
+            raise PartialError(f"cannot merge a {part.kind} partial table into a MERL table")
+        self._acc.merge_partial(part.values, part.dropped)
 
     def fold_mirror_symmetry(self) -> MerlTable:
         """New table pooling φd bins k and 179 − k (bilateral symmetry of isotropic BRDFs).

@@ -1,0 +1,342 @@
+"""Numba kernels adding samples into an exact sum store (:mod:`acquisition.tables.exact`).
+
+A store is five arrays: ``slot`` int32 (bins,) the row of each bin (−1: not touched yet),
+``rows`` int64 (capacity,) the bin of each row, ``count`` int64 (capacity,), ``limbs`` int64
+(capacity, sums, 3) and ``used`` int64 (1,) the rows in use. A sample whose bin has no row yet
+takes the next free one. Samples go in blocks of :data:`BLOCK`; before a block a kernel checks
+that the store has room for as many new bins, else it stops and returns the sample it stopped
+at, the caller grows the store and calls again from there (nothing is lost or added twice).
+
+Per block, every value is converted to limbs in one vectorised pass, exactly as
+:func:`acquisition.tables.fixedpoint.to_limbs` does it in numpy (the same IEEE operations, no
+fast-math), so both backends hold the same integers; then consecutive samples of one bin are
+summed in a small local accumulator and added to the store once per run (an image fills a bin
+with runs of neighbouring pixels: ~75 % of samples follow one of their own bin). A bin's lower
+limbs get a carry pass whenever its count crosses a multiple of 2^17; a top limb past the
+overflow bound is counted in ``tally[3]`` (the caller raises).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: libm only
+
+import numpy as np  # noqa: E402
+from numba import njit  # noqa: E402
+
+from acquisition.tables import accumulator, fixedpoint  # noqa: E402
+
+# Compiled code bakes in the globals it reads, and numba's cache is invalidated by a change to
+# this file only: so the layout is written out here, and checked against its definitions.
+LIMB_BITS = 44
+TOP_LIMIT = 1 << 61
+CARRY_EVERY = 1 << 18
+DROP_NAN = -2
+assert (LIMB_BITS, TOP_LIMIT, CARRY_EVERY) == (fixedpoint.LIMB_BITS, fixedpoint.TOP_LIMIT,
+                                               fixedpoint.CARRY_EVERY)
+assert DROP_NAN == accumulator.DROP_NAN
+
+_JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+_SCALE = float(2**LIMB_BITS)
+_MASK = (1 << LIMB_BITS) - 1
+_MAGIC = 1.5 * 2.0**52
+"""A double 1.5·2^52 ± d, d an integer below 2^51, has the bit pattern of 1.5·2^52 ± d: how
+signed limbs leave the floating-point unit in vector registers (AVX2 has no double → int64)."""
+_MAGIC_BITS = np.int64(0x4338000000000000)
+BLOCK = 256
+"""Samples per block: its values are converted in one vectorised pass (the buffers, ~50 kB,
+stay in the L1/L2 caches)."""
+_CARRY_SHIFT = 17
+"""A bin gets a carry pass when its count crosses a multiple of 2^17: with at most BLOCK
+additions per flush, fewer than CARRY_EVERY = 2^18 additions ever sit on its lower limbs."""
+assert (1 << _CARRY_SHIFT) + BLOCK <= CARRY_EVERY
+
+
+@njit(**_JIT)
+def _convert(x, n, f0, f1, f2):  # pragma: no cover - compiled
+    """Signed limbs of x[q] (fixedpoint.to_limbs) for q < n, each as the double
+    1.5·2^52 + limb (a loop LLVM vectorises: floor, rint, multiplies and adds, all exact but
+    the rint that rounds to the quantum)."""
+    for q in range(n):
+        v = x[q]
+        a = abs(v)
+        sign = -1.0 if v < 0.0 else 1.0
+        t2 = np.floor(a)
+        r = (a - t2) * _SCALE
+        t1 = np.floor(r)
+        t0 = np.rint((r - t1) * _SCALE)
+        f0[q] = _MAGIC + sign * t0
+        f1[q] = _MAGIC + sign * t1
+        f2[q] = _MAGIC + sign * t2
+
+
+@njit(**_JIT)
+def carry_row(limbs, s):  # pragma: no cover - compiled
+    """Carry pass over row ``s`` (fixedpoint.normalize); True when a top limb overflowed."""
+    over = False
+    for k in range(limbs.shape[1]):
+        l0 = limbs[s, k, 0]
+        c = l0 >> LIMB_BITS
+        limbs[s, k, 0] = l0 & _MASK
+        l1 = limbs[s, k, 1] + c
+        c = l1 >> LIMB_BITS
+        limbs[s, k, 1] = l1 & _MASK
+        top = limbs[s, k, 2] + c
+        limbs[s, k, 2] = top
+        if top >= TOP_LIMIT or top <= -TOP_LIMIT:
+            over = True
+    return over
+
+
+@njit(inline="always", **_JIT)
+def _row(b, slot, rows, used):  # pragma: no cover - compiled
+    """Row of bin ``b``, a new one if it has none (the caller made room)."""
+    s = slot[b]
+    if s < 0:
+        s = used[0]
+        slot[b] = s
+        rows[s] = b
+        used[0] = s + 1
+    return s
+
+
+@njit(**_JIT)
+def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
+    """Add a run's ``run`` samples and their summed limbs ``acc`` to row ``s``."""
+    for k in range(acc.shape[0]):
+        limbs[s, k, 0] += acc[k, 0]
+        limbs[s, k, 1] += acc[k, 1]
+        limbs[s, k, 2] += acc[k, 2]
+        acc[k, 0] = 0
+        acc[k, 1] = 0
+        acc[k, 2] = 0
+    before = count[s]
+    count[s] = before + run
+    if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):
+        tally[3] += 1
+
+
+@njit(**_JIT)
+def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """Add value row j (entries j·K … j·K + K − 1 of f0–f2, from :func:`_convert`) to bin
+    ``bins[j]`` for j < n, consecutive samples of one bin summed first (images fill a bin with
+    runs of pixels)."""
+    i0, i1, i2 = f0.view(np.int64), f1.view(np.int64), f2.view(np.int64)
+    if limbs.shape[1] == 6:
+        _scatter6(bins, n, i0, i1, i2, slot, rows, count, limbs, used, tally)
+        return
+    k_sums = limbs.shape[1]
+    acc = np.zeros((k_sums, 3), np.int64)
+    current, s, run = -1, -1, 0
+    for j in range(n):
+        b = bins[j]
+        if b != current:
+            if run:
+                _flush(s, run, acc, count, limbs, tally)
+            current, s, run = b, _row(b, slot, rows, used), 0
+        q = j * k_sums
+        for k in range(k_sums):
+            acc[k, 0] += i0[q + k] - _MAGIC_BITS
+            acc[k, 1] += i1[q + k] - _MAGIC_BITS
+            acc[k, 2] += i2[q + k] - _MAGIC_BITS
+        run += 1
+    if run:
+        _flush(s, run, acc, count, limbs, tally)
+    tally[0] += n
+
+
+@njit(**_JIT)
+def _scatter6(bins, n, i0, i1, i2, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """:func:`_scatter` for six sums (x, x² of RGB), the run's sums held in registers (numba
+    keeps scalars, not a small array, in registers: twice as fast)."""
+    m = _MAGIC_BITS
+    a0 = a1 = a2 = a3 = a4 = a5 = np.int64(0)  # low limbs of the six sums
+    b0 = b1 = b2 = b3 = b4 = b5 = np.int64(0)  # middle limbs
+    c0 = c1 = c2 = c3 = c4 = c5 = np.int64(0)  # top limbs
+    current, s, run = -1, -1, 0
+    for j in range(n + 1):
+        b = bins[j] if j < n else -1
+        if b != current:
+            if run:
+                _flush6(s, run, (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, b5),
+                        (c0, c1, c2, c3, c4, c5), count, limbs, tally)
+                a0 = a1 = a2 = a3 = a4 = a5 = np.int64(0)
+                b0 = b1 = b2 = b3 = b4 = b5 = np.int64(0)
+                c0 = c1 = c2 = c3 = c4 = c5 = np.int64(0)
+            if j == n:
+                break
+            current, s, run = b, _row(b, slot, rows, used), 0
+        q = 6 * j
+        a0 += i0[q] - m
+        a1 += i0[q + 1] - m
+        a2 += i0[q + 2] - m
+        a3 += i0[q + 3] - m
+        a4 += i0[q + 4] - m
+        a5 += i0[q + 5] - m
+        b0 += i1[q] - m
+        b1 += i1[q + 1] - m
+        b2 += i1[q + 2] - m
+        b3 += i1[q + 3] - m
+        b4 += i1[q + 4] - m
+        b5 += i1[q + 5] - m
+        c0 += i2[q] - m
+        c1 += i2[q + 1] - m
+        c2 += i2[q + 2] - m
+        c3 += i2[q + 3] - m
+        c4 += i2[q + 4] - m
+        c5 += i2[q + 5] - m
+        run += 1
+    tally[0] += n
+
+
+@njit(inline="always", **_JIT)
+def _flush6(s, run, low, mid, top, count, limbs, tally):  # pragma: no cover - compiled
+    """:func:`_flush` of a run's six sums given as tuples of (low, middle, top) limbs."""
+    for k in range(6):
+        limbs[s, k, 0] += low[k]
+        limbs[s, k, 1] += mid[k]
+        limbs[s, k, 2] += top[k]
+    before = count[s]
+    count[s] = before + run
+    if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):
+        tally[3] += 1
+
+
+@njit(**_JIT)
+def _room(n, slot, rows, used):  # pragma: no cover - compiled
+    """True when ``n`` new bins fit (or the store already spans the grid)."""
+    return rows.size >= slot.size or rows.size - used[0] >= n
+
+
+@njit(**_JIT)
+def add_block(idx, vals, start, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """Add sample ``start + j`` (value x and x² per channel) to bin ``idx[j]`` (j < BLOCK);
+    tally kept (``tally[0]``), NaN (``[1]``: DROP_NAN or a non-finite channel sum, the numpy
+    path's test) and out of range (``[2]``). Returns False, having done nothing, when the
+    store may not have room for the block's bins."""
+    if not _room(idx.size, slot, rows, used):
+        return False
+    n_bins = slot.size
+    channels = vals.shape[1]
+    k_sums = 2 * channels
+    x = np.empty(idx.size * k_sums)
+    bins = np.empty(idx.size, np.int64)
+    n = 0
+    for j in range(idx.size):
+        b = idx[j]
+        i = start + j
+        total = 0.0
+        for c in range(channels):
+            total += vals[i, c]
+        if b == DROP_NAN or not np.isfinite(total):
+            tally[1] += 1
+        elif b < 0 or b >= n_bins:
+            tally[2] += 1
+        else:
+            q = n * k_sums
+            for c in range(channels):
+                v = vals[i, c]
+                x[q + c] = v
+                x[q + channels + c] = v * v
+            bins[n] = b
+            n += 1
+    f0, f1, f2 = np.empty(n * k_sums), np.empty(n * k_sums), np.empty(n * k_sums)
+    _convert(x, n * k_sums, f0, f1, f2)
+    _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
+    return True
+
+
+@njit(**_JIT)
+def add_flat(idx, vals, slot, rows, count, limbs, used, tally, start):  # pragma: no cover
+    """:func:`add_block` over every sample from ``start``; returns where it stopped."""
+    for a in range(start, idx.size, BLOCK):
+        m = min(BLOCK, idx.size - a)
+        if not add_block(idx[a:a + m], vals, a, slot, rows, count, limbs, used, tally):
+            return a
+    return idx.size
+
+
+@njit(**_JIT)
+def add_sums(idx, vals, slot, rows, count, limbs, used, tally, start):  # pragma: no cover
+    """Add row ``i`` of ``vals`` (every column a sum of its own, no squares) to bin
+    ``idx[i]`` for i from ``start``; the indices are valid and the values finite (the caller
+    filtered). Returns where it stopped (the store needs room)."""
+    k_sums = vals.shape[1]
+    for a in range(start, idx.size, BLOCK):
+        m = min(BLOCK, idx.size - a)
+        if not _room(m, slot, rows, used):
+            return a
+        x = np.ascontiguousarray(vals[a:a + m]).reshape(m * k_sums)
+        f0, f1, f2 = np.empty(m * k_sums), np.empty(m * k_sums), np.empty(m * k_sums)
+        _convert(x, m * k_sums, f0, f1, f2)
+        _scatter(idx[a:a + m], m, f0, f1, f2, slot, rows, count, limbs, used, tally)
+    return idx.size
+
+
+@njit(**_JIT)
+def _budget_row(terms, angles, i, x, q):  # pragma: no cover - compiled
+    """A budget's sums of sample ``i`` into x[q …]: its terms, its angles and their six
+    products (uncertainty.UncertaintySums order); False when one is not finite."""
+    k = 0
+    for c in range(terms.shape[1]):
+        x[q + k] = terms[i, c]
+        k += 1
+    a0, a1, a2 = angles[i, 0], angles[i, 1], angles[i, 2]
+    for v in (a0, a1, a2, a0 * a0, a1 * a1, a2 * a2, a0 * a1, a0 * a2, a1 * a2):
+        x[q + k] = v
+        k += 1
+    ok = True
+    for j in range(k):
+        ok = ok and np.isfinite(x[q + j])
+    return ok
+
+
+@njit(**_JIT)
+def budget_largest(idx, terms, angles):  # pragma: no cover - compiled
+    """(largest |term|, largest |angle|) over the samples :func:`add_budget` keeps."""
+    x = np.empty(terms.shape[1] + 9)
+    big_term, big_angle = 0.0, 0.0
+    for i in range(idx.size):
+        if idx[i] >= 0 and _budget_row(terms, angles, i, x, 0):
+            for c in range(terms.shape[1]):
+                big_term = max(big_term, abs(x[c]))
+            for c in range(3):
+                big_angle = max(big_angle, abs(angles[i, c]))
+    return big_term, big_angle
+
+
+@njit(**_JIT)
+def add_budget(idx, terms, angles, slot, rows, count, limbs, used, tally,
+               start):  # pragma: no cover - compiled
+    """Add each sample's budget (its term values, angles and angle products) to bin
+    ``idx[i]`` for i from ``start``; samples with a negative index or a non-finite value are
+    left out. Returns where it stopped (the store needs room)."""
+    k_sums = limbs.shape[1]
+    x = np.empty(BLOCK * k_sums)
+    bins = np.empty(BLOCK, np.int64)
+    f0, f1, f2 = np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums)
+    for a in range(start, idx.size, BLOCK):
+        m = min(BLOCK, idx.size - a)
+        if not _room(m, slot, rows, used):
+            return a
+        n = 0
+        for j in range(m):
+            if idx[a + j] >= 0 and _budget_row(terms, angles, a + j, x, n * k_sums):
+                bins[n] = idx[a + j]
+                n += 1
+        _convert(x, n * k_sums, f0, f1, f2)
+        _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
+    return idx.size
+
+
+@njit(**_JIT)
+def max_finite_abs(vals):  # pragma: no cover - compiled
+    """Largest |v| over the finite entries of a 2-D array (0 for none)."""
+    largest = 0.0
+    for i in range(vals.shape[0]):
+        for c in range(vals.shape[1]):
+            a = abs(vals[i, c])
+            if a > largest and np.isfinite(a):
+                largest = a
+    return largest

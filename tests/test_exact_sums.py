@@ -1,0 +1,189 @@
+"""The exact accumulator: fixed-point conversion and rounding against Python's exact
+arithmetic (fractions, math.fsum), split/order independence where float sums are not, the
+range limits, and both backends holding the same integers."""
+
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+from acquisition.tables import BinAccumulator, IsotropicTable, MerlTable
+from acquisition.tables.exact import ExactSums
+from acquisition.tables.fixedpoint import (
+    FRACTION_BITS,
+    LIMB_BITS,
+    OutOfRangeError,
+    normalize,
+    to_float,
+    to_limbs,
+)
+
+BACKENDS = ("numba", "numpy")
+
+
+def _integer(limbs: np.ndarray) -> int:
+    """The integer a value's (3,) limbs stand for (Python int, no overflow)."""
+    return sum(int(x) << (LIMB_BITS * k) for k, x in enumerate(limbs))
+
+
+def _values(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Values over the physical range: BRDF, variances, angles, tiny and negative ones."""
+    return rng.normal(0.0, 1.0, n) * 10.0 ** rng.integers(-16, 11, n)
+
+
+def test_conversion_is_round_to_quantum_and_exact_above_2_to_minus_36():
+    rng = np.random.default_rng(1)
+    x = np.concatenate([_values(rng, 3000), [0.0, -0.0, 2.0**40 - 2.0**-12, -(2.0**-36),
+                                             1.5 * 2.0**-88, 2.5 * 2.0**-88, 2.0**-89]])
+    limbs = to_limbs(x)
+    for v, lv in zip(x, limbs, strict=True):
+        assert _integer(lv) == round(Fraction(float(v)) * 2**FRACTION_BITS), v  # half to even
+    exact = np.abs(x) >= 2.0**-36
+    np.testing.assert_array_equal(to_float(limbs)[exact], x[exact])
+    assert exact.sum() > 1500 and (~exact).sum() > 500
+
+
+def test_readout_is_correctly_rounded_ties_included():
+    rng = np.random.default_rng(2)
+    ints = []
+    for bits in rng.integers(1, 148, 4000):
+        m = int(rng.integers(1, 2**62)) << max(0, int(bits) - 62) >> max(0, 62 - int(bits))
+        if m.bit_length() > 54 and rng.random() < 0.4:  # an exact tie between two floats
+            drop = m.bit_length() - 54
+            m = (m >> drop << drop) | (1 << (drop - 1)) if rng.random() < 0.5 else m >> drop << drop
+        ints.append(-m if rng.random() < 0.5 else m)
+    limbs = np.array([[(m >> (LIMB_BITS * k)) & ((1 << LIMB_BITS) - 1) if k < 2
+                       else m >> (2 * LIMB_BITS) for k in range(3)] for m in ints], np.int64)
+    want = np.array([m / 2**FRACTION_BITS for m in ints])  # Python rounds int / int correctly
+    np.testing.assert_array_equal(to_float(limbs), want)
+    # Unnormalised limbs (a running sum between carry passes) read the same.
+    lazy = limbs.copy()
+    lazy[:, 0] += 5 << LIMB_BITS
+    lazy[:, 1] -= 5
+    np.testing.assert_array_equal(to_float(lazy), want)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_bin_sums_are_math_fsum_of_the_samples(backend):
+    """Each Σx and Σx² is the correctly rounded exact sum (math.fsum, computed independently)
+    of the bin's samples, whatever their order or magnitude."""
+    rng = np.random.default_rng(3)
+    n = 20_000
+    idx = rng.integers(0, 50, n)
+    vals = np.stack([_values(rng, n) * 1e-6, rng.uniform(0, 1e4, n), -rng.uniform(0, 1, n)], 1)
+    vals[:, 0] = np.clip(vals[:, 0], -1e5, 1e5)
+    acc = BinAccumulator((50,), 3, backend=backend)
+    acc.add_flat(idx[:7000], vals[:7000])
+    acc.add_flat(idx[7000:], vals[7000:])
+    for b in range(50):
+        sel = vals[idx == b]
+        for c in range(3):
+            assert acc.sum[b, c] == math.fsum(sel[:, c])
+            assert acc.sum_of_squares[b, c] == math.fsum(sel[:, c] * sel[:, c])
+
+
+def test_backends_hold_the_same_integers_with_lazy_carries_and_runs():
+    """Runs of one bin longer than a block, bins past 2^17 additions (carry passes), negative
+    values: the stores' canonical partials are equal, limb for limb."""
+    rng = np.random.default_rng(4)
+    idx = np.concatenate([np.zeros(300_000, np.int64), rng.integers(0, 7, 20_000)])
+    vals = np.concatenate([rng.normal(5, 3, (300_000, 3)), rng.normal(0, 1, (20_000, 3))])
+    parts = []
+    for backend in BACKENDS:
+        acc = BinAccumulator((7,), 3, backend=backend)
+        acc.add_flat(idx, vals)
+        parts.append(acc.partial())
+    assert parts[0].same_as(parts[1])
+    assert parts[0].count[0] > 300_000
+    low = parts[0].limbs[..., :2]
+    assert low.min() >= 0 and low.max() < 2**LIMB_BITS  # canonical
+
+
+def test_float_sums_depend_on_the_split_exact_sums_do_not():
+    """The same samples in two batch splits: naive float64 accumulation (what the tables did
+    before) gives different sums; the exact accumulator gives the same bits."""
+    rng = np.random.default_rng(5)
+    n = 30_000
+    idx = rng.integers(0, 20, n)
+    vals = rng.lognormal(0, 2, (n, 3))
+    order = rng.permutation(n)
+
+    def naive(i: np.ndarray, v: np.ndarray, cut: int) -> np.ndarray:
+        halves = []
+        for a, b in ((0, cut), (cut, i.size)):
+            part = np.zeros((20, 3))
+            np.add.at(part, i[a:b], v[a:b])
+            halves.append(part)
+        return halves[0] + halves[1]
+
+    assert not np.array_equal(naive(idx, vals, 1000), naive(idx[order], vals[order], 17_000))
+    exact = []
+    for i, v, cut in ((idx, vals, 1000), (idx[order], vals[order], 17_000)):
+        a, b = BinAccumulator((20,), 3), BinAccumulator((20,), 3)
+        a.add_flat(i[:cut], v[:cut])
+        b.add_flat(i[cut:], v[cut:])
+        b.merge_from(a)
+        exact.append(b.sum)
+    np.testing.assert_array_equal(exact[0], exact[1])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_out_of_range_values_raise_one_line_and_change_nothing(backend):
+    table = IsotropicTable(np.arange(0, 91, 30.0), np.arange(0, 91, 30.0), [0, 90, 180],
+                           backend=backend)
+    table.add(10.0, 10.0, 10.0, [[1.0, 2.0, 3.0]])
+    with pytest.raises(OutOfRangeError, match=r"sample value 2\.5e\+06 sr⁻¹ is outside") as err:
+        table.add([10.0, 20.0], 10.0, 10.0, [[1.0, 1.0, 1.0], [2.5e6, 1.0, 1.0]])
+    assert "\n" not in str(err.value)
+    assert table.n_samples == 1 and table.mean[0, 0, 0, 0] == 1.0
+    merl = MerlTable(backend=backend)
+    with pytest.raises(OutOfRangeError):
+        merl.add_halfdiff([10.0], [10.0], [10.0], [[-(2.0**20), 0.0, 0.0]])
+    assert merl.n_samples == 0
+    merl.add_halfdiff([10.0], [10.0], [10.0], [[np.inf, 1.0, 0.0]])  # not finite: dropped
+    assert (merl.n_samples, merl.n_dropped_nan) == (0, 1)
+    budget = IsotropicTable([0, 90], [0, 90], [0, 180], backend=backend)
+    budget.track_uncertainty({"noise": "n"}, {"white": "w"})
+    with pytest.raises(OutOfRangeError, match="uncertainty term 'noise'"):
+        budget.add(10.0, 10.0, 10.0, [[1.0, 1.0, 1.0]], variances={"noise": [[2.0**41, 0, 0]]},
+                   uncertainties={"white": [[0.0, 0, 0]]})
+    assert budget.n_samples == 0
+
+
+def test_a_sum_that_would_overflow_raises():
+    store = ExactSums(1, 1)
+    big = normalize(to_limbs(np.array([[2.0**60]])))  # as a stored sum may be
+    from acquisition.tables.exact import SparseSums
+
+    part = SparseSums(1, np.array([0]), np.array([1]), big)
+    store.merge(part)
+    with pytest.raises(OutOfRangeError, match="overflowed"):
+        for _ in range(4):
+            store.merge(part)
+
+
+def test_budget_sums_agree_across_backends_and_drop_the_same_samples():
+    rng = np.random.default_rng(6)
+    n = 5000
+    ti, tr, dp = rng.uniform(-5, 95, n), rng.uniform(0, 90, n), rng.uniform(-200, 200, n)
+    values = rng.lognormal(-2, 1, (n, 3))
+    noise = values**2 * 1e-4
+    noise[::97, 1] = np.nan  # a sample without a noise estimate: left out of the budget
+    white = values * 1e-3
+    parts = []
+    for backend in BACKENDS:
+        table = IsotropicTable(np.arange(0, 91, 15.0), np.arange(0, 91, 15.0),
+                               np.arange(0, 181, 30.0), backend=backend)
+        table.track_uncertainty({"noise": "n"}, {"white": "w"})
+        for a in range(0, n, 1700):
+            s = slice(a, a + 1700)
+            table.add(ti[s], tr[s], dp[s], values[s], at=(ti[s] + 0.1, tr[s], dp[s]),
+                      variances={"noise": noise[s]}, uncertainties={"white": white[s]})
+        parts.append(table.partial())
+    assert parts[0].values.same_as(parts[1].values)
+    assert parts[0].budget.sums.same_as(parts[1].budget.sums)
+    kept = parts[0].budget.sums.count.sum()
+    assert 0 < kept < parts[0].values.count.sum()  # the NaN-noise samples are not in it

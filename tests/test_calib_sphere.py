@@ -8,8 +8,6 @@ where the arms' common point images, the pointing fitted with the rest)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 from misaligned import assert_recovered, calibrate_json, sphere_rig
 

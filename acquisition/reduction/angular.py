@@ -20,7 +20,11 @@ arms stood a little elsewhere:
   known to :data:`BACKLASH_CORRECTION_FRACTION` of itself (a datasheet's figure or a one-off
   measurement; ``gonio calibrate geometry`` measures it) — as the correlated term
   ``backlash`` (:data:`BACKLASH_TERM`). Budgeting ±b/2 as independent would leave a known bias
-  in every value and claim that it averages down over samples and bins, which it does not;
+  in every value and claim that it averages down over samples and bins, which it does not
+  (tests/test_backlash_budget.py: with 0.2° of backlash and no other error, an uncalibrated
+  GGX capture's peak bins so corrected err as their noise predicts — spread 1.01 — and the
+  term is the size of the truth's change when an axis' b moves by its 1σ — ratio 1.10 —
+  where uncorrected they are 2.8 % off, 100 times their noise);
 * the lamp's size (``[light] source_diameter_m``): a value is the BRDF averaged over the
   directions of a disc, not its value at the disc's centre — a bias of
   ½ tr(H Σ) + ½ Gᵀ Σ G (Σ: the disc's direction covariance, ρ²/4 in each of its two

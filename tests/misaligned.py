@@ -1,7 +1,8 @@
 """What the acceptance tests on a misaligned rig share: ``gonio calibrate geometry --json``, a
 capture planned with its bundle and reduced with and without it, the peak bins' errors against
-the truth, and the pose the planner's joints realise on the simulated world's TRUE geometry
-(its own code: :class:`~acquisition.simworld.misalignment.TrueGeometry`)."""
+the truth, the pose the planner's joints realise on the simulated world's TRUE geometry
+(its own code: :class:`~acquisition.simworld.misalignment.TrueGeometry`), and the sphere rig
+at a reduced resolution."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from conftest import EXAMPLES
 
 from acquisition import api
 from acquisition.api.truth import truth_table
@@ -26,6 +28,24 @@ from acquisition.tables import IsotropicTable
 
 MATERIAL = "ggx:albedo=0.1,alpha=0.06,f0=0.5"
 """The issue's GGX material: a lobe ≈ 8° wide at half maximum."""
+
+
+def sphere_rig(root: Path, scale: float, errors: str, focal: float = 1.0) -> Path:
+    """``root/rig.toml``: examples/rig-sphere-sim.toml at ``scale`` of its resolution (the
+    region of interest alike; the focal length ``focal`` times more), with ``errors`` as its
+    ``[simulation.errors]`` lines."""
+    text = (EXAMPLES / "rig-sphere-sim.toml").read_text()
+    size, f = int(1000 * scale), 7200.0 * scale * focal
+    lo, hi = int(200 * scale), int(300 * scale)
+    for old, new in (("width = 1000", f"width = {size}"), ("height = 1000", f"height = {size}"),
+                     ("fx = 7200.0", f"fx = {f:g}"), ("fy = 7200.0", f"fy = {f:g}"),
+                     ("roi = [200, 200, 300, 300]", f"roi = [{lo}, {lo}, {hi}, {hi}]"),
+                     ("[buses.main]", f"[simulation.errors]\n{errors}\n\n[buses.main]")):
+        assert old in text
+        text = text.replace(old, new, 1)
+    path = root / "rig.toml"
+    path.write_text(text)
+    return path
 
 
 def calibrate_json(rig: Path, root: Path, seed: int = 3) -> dict:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import EXAMPLES
+from misaligned import sphere_rig
 
 from acquisition import api
 from acquisition.api.truth import image_truth_table
@@ -27,12 +27,9 @@ from acquisition.tables.partial import load_partial, merge_all, save_partial
 from calibration.bundle import CalibrationBundle
 
 MATERIAL = "ggx:albedo=0.1,alpha=0.1,f0=0.5"
-ERRORS = """[simulation.errors]
-position_noise_deg = { light_theta = 0.05, camera_theta = 0.05, camera_phi = 0.05 }
+ERRORS = """position_noise_deg = { light_theta = 0.05, camera_theta = 0.05, camera_phi = 0.05 }
 source_diameter_m = 0.005
-seed = 1
-
-[buses.main]"""
+seed = 1"""
 POSES = [[20 + 1.5 * k, 25 + 0.9 * (7 * k % 24), 169 + 0.9 * (5 * k % 24)] for k in range(24)]
 """24 frames, every axis moving between any two (an arm that stays put keeps its position
 error: frames sharing it would make fewer independent draws), light–camera angles 45–100°
@@ -45,14 +42,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """rig-sphere-sim.toml at 0.3× the resolution (the sphere 72 superpixels in radius) with
     the errors above, the GGX material captured over :data:`POSES` into 2° bins."""
     root = tmp_path_factory.mktemp("image-angular")
-    text = (EXAMPLES / "rig-sphere-sim.toml").read_text()
-    for old, new in (("width = 1000", "width = 300"), ("height = 1000", "height = 300"),
-                     ("fx = 7200.0", "fx = 2160.0"), ("fy = 7200.0", "fy = 2160.0"),
-                     ("roi = [200, 200, 300, 300]", "roi = [60, 60, 90, 90]"),
-                     ("[buses.main]", ERRORS)):
-        assert old in text
-        text = text.replace(old, new, 1)
-    (root / "rig.toml").write_text(text)
+    sphere_rig(root, 0.3, ERRORS)
     rows = ", ".join(f"[{a:g}, {b:g}, {c:g}]" for a, b, c in POSES)
     (root / "plan.toml").write_text(
         f'format_version = 1\nname = "sphere-peaks"\n[sampling]\nkind = "list"\n'

@@ -22,6 +22,13 @@ out_of_plane` and :mod:`acquisition.calibrate.coaxial` choose each kind's config
    only turns the tilt about the normal).
 4. The result goes into the calibration bundle's ``geometry`` section, with its provenance.
 
+On an image-based rig the camera's pointing error moves the point of the target a pixel sees
+(:mod:`acquisition.calibrate.mirror_model`): the sphere's centre in the image is measured
+first (:mod:`acquisition.calibrate.pointing`), the mirror peaks are read in a window of
+:data:`MIRROR_WINDOW_PX` superpixels about where it puts the arms' common point, and the
+pointing is a parameter of the same fit (the sphere's centre its observation), so its 1σ and
+its correlation with the rest are the fit's.
+
 Other kinematics (a light stage: nothing moves) are refused in one line.
 """
 
@@ -37,13 +44,14 @@ from typing import Any
 import numpy as np
 
 from acquisition.calibrate import coaxial, out_of_plane
-from acquisition.calibrate.mirror_model import MirrorModel, PeakObservation
+from acquisition.calibrate.mirror_model import CameraOptics, MirrorModel, PeakObservation
 from acquisition.calibrate.pointing import Pointing, measure_pointing
 from acquisition.calibrate.scans import Procedure, Scope
 from acquisition.config.rig import RigConfig, load_rig
 from acquisition.devices.rig import OperatorPrompt, open_devices, require_operator
-from acquisition.geometry.alignment import TILT_PARAMS, Alignment
+from acquisition.geometry.alignment import POINTING_PARAMS, TILT_PARAMS, Alignment
 from acquisition.geometry.kinematics import CoaxialArms, OutOfPlaneArcs
+from acquisition.geometry.pinhole import PinholeCamera
 from acquisition.planning.planner import Planner
 from acquisition.simworld.scene import white_material
 from calibration.bundle import CalibrationBundle, provenance
@@ -55,6 +63,10 @@ PROCEDURES: dict[str, Procedure] = {OutOfPlaneArcs.name: out_of_plane.PROCEDURE,
 """Rig-file ``kinematics`` → its calibration procedure."""
 
 Progress = Callable[[int, int], None]
+MIRROR_WINDOW_PX = 5
+"""Side (superpixels) of the window an image-based rig reads a mirror peak in."""
+WHITE_POINTS = 9
+"""Points per side of the region of interest the white signal's model averages over."""
 
 
 @dataclass
@@ -125,14 +137,20 @@ def calibrate_geometry(rig_path: str | Path, bundle_path: str | Path, *, seed: i
         scope = Scope(dev, rig, Path(tmp), rig.camera.exposure_s, progress,
                       procedure.expected_frames(rig))
         pointing = measure_pointing(scope, rig, planner) if rig.sample.image_based else None
+        optics = None if pointing is None else camera_optics(rig, pointing)
         dev.present("mirror")
+        if optics is not None:
+            scope.roi = mirror_window(optics)
         peaks = procedure.mirror_peaks(scope, rig)
+        scope.roi = rig.camera.roi
         dev.present("white")
         whites = procedure.white_falloff(scope, rig)
         dev.present("sample")
-    model = MirrorModel(scope.kinematics)
-    fit = solve(lambda x: model.residuals(x, peaks, whites), model.start(whites), model.names,
-                model.scales)
+    model = MirrorModel(scope.kinematics, optics)
+    centres = [] if pointing is None else [pointing.centre]
+    fit = solve(lambda x: model.residuals(x, peaks, whites, centres),
+                model.start(whites, (0.0, 0.0) if pointing is None
+                            else (pointing.x_deg, pointing.y_deg)), model.names, model.scales)
     run = _result(bundle.path, scope.count, model, fit, peaks, pointing)
     run.not_measured = [f"{n} zero offset (turns only the sample tilt about the normal: the "
                         "tilt is stated in the frame of the commanded angle)"
@@ -143,6 +161,35 @@ def calibrate_geometry(rig_path: str | Path, bundle_path: str | Path, *, seed: i
                                              + (" + sphere pointing" if pointing else ""),
                                    peaks=len(peaks), white_frames=len(whites)))
     return run
+
+
+def camera_optics(rig: RigConfig, pointing: Pointing) -> CameraOptics:
+    """An image-based rig's camera for the model: its mirror window centred on the superpixel
+    nearest where the measured pointing puts the arms' common point, the white signal averaged
+    over :data:`WHITE_POINTS`² points spanning the region of interest."""
+    k = rig.camera.intrinsics
+    assert k is not None  # an image-based rig file states them
+    intrinsics = k.at(pointing.shape)
+    camera = rig.kinematics().forward_geometry(pointing.centre.joints).camera_dir
+    origin = PinholeCamera.looking_at_origin(intrinsics, pointing.shape, camera,
+                                             rig.camera_distance_m).pointed(
+        pointing.x_deg, pointing.y_deg).project(np.zeros(3))
+    half = (MIRROR_WINDOW_PX - 1) / 2.0
+    corner = [int(round(float(v) - half)) for v in origin]
+    x0, y0, x1, y1 = rig.camera.roi
+    grid = np.stack(np.meshgrid(np.linspace(x0, x1 - 1, min(WHITE_POINTS, x1 - x0)),
+                                np.linspace(y0, y1 - 1, min(WHITE_POINTS, y1 - y0))), axis=-1)
+    return CameraOptics(intrinsics, rig.camera_distance_m, rig.light_distance_m,
+                        (corner[0] + half, corner[1] + half), grid.reshape(-1, 2),
+                        rig.sample.centre_m)
+
+
+def mirror_window(optics: CameraOptics) -> tuple[int, int, int, int]:
+    """The superpixels (x0, y0, x1, y1) the mirror peaks are read in: the
+    :data:`MIRROR_WINDOW_PX` square about :attr:`CameraOptics.mirror_pixel`."""
+    half = (MIRROR_WINDOW_PX - 1) / 2.0
+    x0, y0 = (int(round(v - half)) for v in optics.mirror_pixel)
+    return x0, y0, x0 + MIRROR_WINDOW_PX, y0 + MIRROR_WINDOW_PX
 
 
 def _finite(value: Any) -> Any:
@@ -161,15 +208,16 @@ def _result(bundle: Path, frames: int, model: MirrorModel, fit: LsqResult,
     """The alignment (offsets, tilt, backlash, their covariance; the camera's pointing) and
     the fit's figures."""
     values = dict(zip(fit.names, fit.values.tolist(), strict=True))
-    names = (*model.axes, *TILT_PARAMS, *model.backlash)
+    names = (*model.axes, *TILT_PARAMS, *model.backlash, *model.pointing)
     idx = [fit.names.index(n) for n in names]
     p = pointing
     alignment = Alignment({a: values[a] for a in model.axes},
                           (values[TILT_PARAMS[0]], values[TILT_PARAMS[1]]), names,
                           fit.covariance[np.ix_(idx, idx)],
                           {a: values[f"backlash:{a}"] for a in model.axes},
-                          (0.0, 0.0) if p is None else (p.x_deg, p.y_deg),
-                          (0.0, 0.0) if p is None else (p.sigma_x_deg, p.sigma_y_deg))
+                          (values.get(POINTING_PARAMS[0], 0.0), values.get(POINTING_PARAMS[1], 0.0)),
+                          (0.0, 0.0) if p is None else (fit.sigma(POINTING_PARAMS[0]),
+                                                        fit.sigma(POINTING_PARAMS[1])))
     resid = [fit.residuals[k] * o.sigma_deg for k, o in enumerate(peaks)]
     extra = {} if p is None else {"sphere_radius_px": p.radius_px,
                                   "camera_distance_m": p.camera_distance_m}

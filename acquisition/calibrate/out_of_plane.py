@@ -9,7 +9,8 @@
    backlash of every axis is measured and the zero offsets are those of the centre of the play.
 2. Mirror peaks see the light arm's offset only as ``light_theta − 2·tilt_about_y``; the white
    target's cos θi fall-off across the light arm (the light at ± :data:`WHITE_ANGLES_DEG`, the
-   camera at the zenith, both approaches) is the absolute reference that separates them.
+   camera :data:`WHITE_CAMERA` off the normal out of the light's plane, both approaches) is the
+   absolute reference that separates them.
 """
 
 from __future__ import annotations
@@ -31,6 +32,11 @@ WHITE_ANGLES_DEG = (50.0, 62.0, 74.0)
 """Light elevations (both sides) of the white fall-off."""
 PHI_EDGE_DEG = 1.5
 """How far inside its limit the camera azimuth stays for the +x configurations."""
+WHITE_CAMERA = {"camera_theta": 10.0, "camera_phi": 90.0}
+"""The camera's joints (deg) during the white fall-off: out of the light's plane (the two
+sides see it alike), and off the normal, where a camera's image would turn over as a zero
+offset moves it across (the image's up is the normal projected: an image-based rig's region of
+interest would jump between two points of the target)."""
 
 
 def expected_frames(rig: RigConfig) -> int:
@@ -94,7 +100,8 @@ def _light_noise_deg(rig: RigConfig) -> float:
 
 def white_falloff(scope: Scope, rig: RigConfig) -> list[mm.WhiteObservation]:
     """The white target's signal with the light at ± each of :data:`WHITE_ANGLES_DEG`, the
-    camera at the zenith, the light approached from both sides."""
+    camera at :data:`WHITE_CAMERA` (approached from below), the light approached from both
+    sides."""
     noise = math.radians(rig.axes["light_theta"].position_noise_deg)
     scope.exposure_s = rig.camera.exposure_s
     out = []
@@ -102,12 +109,11 @@ def white_falloff(scope: Scope, rig: RigConfig) -> list[mm.WhiteObservation]:
         for theta in WHITE_ANGLES_DEG:
             for side in (1, -1):
                 lt = side * theta
-                joints = scope.go({"light_theta": lt, "camera_theta": 0.0, "camera_phi": 0.0},
-                                  {"light_theta": s})
+                approach = {"light_theta": s, **dict.fromkeys(WHITE_CAMERA, 1)}
+                joints = scope.go({"light_theta": lt, **WHITE_CAMERA}, approach)
                 r = scope.read()
                 rel = math.hypot(r.rel_sigma, math.tan(math.radians(theta)) * noise)
-                out.append(mm.WhiteObservation(joints, {"light_theta": s}, math.log(r.signal),
-                                               rel))
+                out.append(mm.WhiteObservation(joints, approach, math.log(r.signal), rel))
     return out
 
 

@@ -70,15 +70,20 @@ class Scope:
     noise: NoiseModel | None = field(default=None)
     kinematics: Kinematics = field(init=False)
     """The rig file's kinematics (a scan's nominal geometry)."""
+    roi: tuple[int, int, int, int] = field(init=False)
+    """The superpixels read (x0, y0, x1, y1), end exclusive: the rig file's region of
+    interest unless the procedure chooses others."""
 
     def __post_init__(self) -> None:
         self.kinematics = self.rig.kinematics()
+        self.roi = self.rig.camera.roi
         if self.rig.camera.driver == "simulated":
             self.noise = nominal_noise_model(self.rig, float(self.rig.camera.iso))
 
     def read(self) -> Reading:
-        """A frame now, retaken shorter until its region of interest is unclipped."""
-        x0, y0, x1, y1 = self.rig.camera.roi
+        """A frame now, retaken shorter until its region of interest (:attr:`roi`) is
+        unclipped."""
+        x0, y0, x1, y1 = self.roi
         for _ in range(MAX_RETAKES):
             path = self.folder / f"geometry-{self.count:05d}.dng"
             self.dev.capture(path, self.exposure_s, self.rig.camera.iso, 7_000_003 + self.count)

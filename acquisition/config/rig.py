@@ -139,6 +139,13 @@ class CameraIntrinsics:
     cx: float | None = None
     cy: float | None = None
 
+    def at(self, shape: tuple[int, int]) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) for an image of ``shape`` (rows, columns): a missing principal
+        point is the image centre."""
+        h, w = shape
+        return (self.fx, self.fy, (w - 1) / 2.0 if self.cx is None else self.cx,
+                (h - 1) / 2.0 if self.cy is None else self.cy)
+
 
 SAMPLE_SHAPES = ("flat", "sphere")
 

@@ -1,5 +1,6 @@
 """Coordinate geometry shared by every stage: rig kinematics (joints ⇄ θi, θr, Δφ), MERL
-half/difference coordinates, and pose sampling patterns. Pure math.
+half/difference coordinates, pose sampling patterns and the pinhole camera of image-based
+rigs. Pure math.
 
 May import: ``drivers.errors``.
 """

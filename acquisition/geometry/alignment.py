@@ -15,10 +15,12 @@ its rig file's model, and the planner and the reduction apply it through
   target from the side :func:`~acquisition.geometry.approach.approach_signs` gives, so the
   arms stand at the joints plus :meth:`Alignment.effective_offsets`;
 * camera pointing (image-based rigs): the optical axis turned towards the image's +x, then
-  +y (deg), from where the sphere's centre falls in the image;
+  +y (deg) (:mod:`acquisition.geometry.pinhole`), from where the sphere's centre falls in the
+  image;
 * parameters, in :attr:`Alignment.param_names` order: one offset per calibrated axis (named
-  by the axis), ``tilt_about_x`` and ``tilt_about_y``, and ``backlash:AXIS`` per measured
-  backlash; :attr:`Alignment.covariance_deg2` is their covariance (deg²).
+  by the axis), ``tilt_about_x`` and ``tilt_about_y``, ``backlash:AXIS`` per measured
+  backlash and, where the calibration fitted it with the rest, the pointing's
+  :data:`POINTING_PARAMS`; :attr:`Alignment.covariance_deg2` is their covariance (deg²).
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ TILT_PARAMS = ("tilt_about_x", "tilt_about_y")
 """Names of the sample-tilt parameters (deg)."""
 BACKLASH_PREFIX = "backlash:"
 """Prefix of a backlash parameter's name (``backlash:light_theta``)."""
+POINTING_PARAMS = ("camera_pointing_x", "camera_pointing_y")
+"""Names of the camera pointing's parameters (image-based rigs), deg."""
 
 
 def tilt_matrix(about_x_deg: float, about_y_deg: float) -> np.ndarray:
@@ -70,6 +74,8 @@ class Alignment:
         """Parameter ``name`` (deg)."""
         if name in TILT_PARAMS:
             return self.sample_tilt_deg[TILT_PARAMS.index(name)]
+        if name in POINTING_PARAMS:
+            return self.camera_pointing_deg[POINTING_PARAMS.index(name)]
         if name.startswith(BACKLASH_PREFIX):
             return self.backlash_deg.get(name.removeprefix(BACKLASH_PREFIX), 0.0)
         return self.zero_offset_deg.get(name, 0.0)
@@ -102,6 +108,10 @@ class Alignment:
             tilt = list(self.sample_tilt_deg)
             tilt[TILT_PARAMS.index(name)] += delta_deg
             return replace(self, sample_tilt_deg=(tilt[0], tilt[1]))
+        if name in POINTING_PARAMS:
+            pointing = list(self.camera_pointing_deg)
+            pointing[POINTING_PARAMS.index(name)] += delta_deg
+            return replace(self, camera_pointing_deg=(pointing[0], pointing[1]))
         if name.startswith(BACKLASH_PREFIX):
             axis = name.removeprefix(BACKLASH_PREFIX)
             backlash = dict(self.backlash_deg)

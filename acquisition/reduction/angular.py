@@ -1,14 +1,30 @@
 """Angular uncertainty of every sample: where the arms really were, through the BRDF's slope.
 
 A sample's value belongs to the pose the reduction's geometry model gives its read-back joints
-(the geometric calibration's, when one is applied). The arms stood a little elsewhere:
+(:class:`~acquisition.reduction.samplegeometry.SampleGeometry`: the rig file's, corrected by
+the geometric calibration when one is applied and by the backlash the rig file states). The
+arms stood a little elsewhere:
 
 * independent per sample — each axis' position noise (σ) as the rig file states it
   (``[axes.NAME] position_noise_deg``; a rig with backlash approaches every target afresh, so
-  each step draws it anew), and its backlash (``backlash_deg``: the arm stops ``b/2`` behind
-  the centre of its play) where no calibration corrects it (±b/2, equally likely);
+  each step draws it anew);
 * common to every sample — the geometric calibration's own error (its covariance of zero
-  offsets, tilt and backlash);
+  offsets, tilt and backlash), and the error of the correction for a backlash the rig file
+  states (``backlash_deg``, axes no calibration measured). A rig stating backlash approaches
+  every target from one side (:mod:`acquisition.geometry.approach`: from below unless the
+  lower limit leaves no room), so each arm stands ``b/2`` behind its commanded angle on the
+  side :func:`~acquisition.geometry.approach.approach_signs` gives, every frame approached
+  from that side alike: a systematic offset, not a ±b/2 drawn anew per sample (the simulated
+  gears, :mod:`simulators.dynamixel.drivetrain`, do the same). So the reduction corrects it,
+  as it corrects a backlash the calibration measured, and budgets what is left — the stated b
+  known to :data:`BACKLASH_CORRECTION_FRACTION` of itself (a datasheet's figure or a one-off
+  measurement; ``gonio calibrate geometry`` measures it) — as the correlated term
+  ``backlash`` (:data:`BACKLASH_TERM`). Budgeting ±b/2 as independent would leave a known bias
+  in every value and claim that it averages down over samples and bins, which it does not
+  (tests/test_backlash_budget.py: with 0.2° of backlash and no other error, an uncalibrated
+  GGX capture's peak bins so corrected err as their noise predicts — spread 1.01 — and the
+  term is the size of the truth's change when an axis' b moves by its 1σ — ratio 1.10 —
+  where uncorrected they are 2.8 % off, 100 times their noise);
 * the lamp's size (``[light] source_diameter_m``): a value is the BRDF averaged over the
   directions of a disc, not its value at the disc's centre — a bias of
   ½ tr(H Σ) + ½ Gᵀ Σ G (Σ: the disc's direction covariance, ρ²/4 in each of its two
@@ -41,14 +57,14 @@ from typing import Any
 import numpy as np
 
 from acquisition.config.rig import RigConfig
-from acquisition.geometry.alignment import Alignment
+from acquisition.geometry.alignment import POINTING_PARAMS, Alignment
 from acquisition.geometry.kinematics import Kinematics
 from acquisition.geometry.kinematics.base import wrap_deg_array
 from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
+from acquisition.reduction.samplegeometry import SampleGeometry
 
-ANGULAR_TERM = {"angular": "the arms' position noise and any backlash no calibration "
-                           "corrects (rig file) through the BRDF's local slope and "
-                           "curvature, independent"}
+ANGULAR_TERM = {"angular": "the arms' position noise (rig file) through the BRDF's local "
+                           "slope and curvature, independent"}
 CALIBRATION_TERM = {"geometry_calibration": "the geometric calibration's 1σ (zero offsets, "
                                             "sample tilt, backlash) through the BRDF's local "
                                             "slope, common to the bins"}
@@ -57,6 +73,13 @@ SOURCE_TERM = {"source_size": "the correction for the lamp's disc (rig file's [l
                               "independent"}
 SOURCE_CORRECTION_FRACTION = 0.3
 """Standard uncertainty of the source-size correction, as a fraction of it."""
+BACKLASH_CORRECTION_FRACTION = 0.3
+"""Standard uncertainty of a stated backlash (and of the correction for it), as a fraction of
+it: a stated play is a specification or a one-off measurement, not this rig's calibration."""
+BACKLASH_TERM = {"backlash": "the correction for the backlash the rig file states (each arm "
+                             "b/2 behind the side it approached from) through the BRDF's local "
+                             f"slope: {BACKLASH_CORRECTION_FRACTION:.0%} of it, common to the "
+                             "bins"}
 NONLINEAR_FRACTION = 0.1
 MC_DRAWS = 512
 NEIGHBOURS = 8
@@ -68,8 +91,6 @@ STEP_DEG = 1e-3
 FIT_BATCH = 256
 """Local fits solved together (memory: FIT_BATCH × neighbours × 10 floats)."""
 RAD = np.pi / 180.0
-POINTING_PARAMS = ("camera_pointing_x", "camera_pointing_y")
-"""The camera pointing's calibration parameters (image-based rigs), deg."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +99,7 @@ class AngularSources:
 
     joint_names: tuple[str, ...]
     backlash_deg: np.ndarray
+    """The stated backlash the reduction corrects (0 where a calibration measured it)."""
     noise_deg: np.ndarray
     alignment: Alignment | None
     source_radius_deg: float = 0.0
@@ -86,24 +108,30 @@ class AngularSources:
     """An image-based rig: the calibration's camera pointing (with its 1σ) is a parameter."""
 
     @classmethod
-    def of(cls, rig: RigConfig, kinematics: Kinematics,
-           alignment: Alignment | None) -> AngularSources:
-        """The rig file's stated errors (a backlash the calibration measured is corrected, not
-        an uncertainty of its own: its 1σ is in the calibration's covariance)."""
-        names = kinematics.joint_names
-        measured = {} if alignment is None else alignment.backlash_deg
-        axes = rig.axes
-        return cls(names,
-                   np.array([0.0 if n in measured else axes[n].backlash_deg for n in names],
-                            float),
-                   np.array([axes[n].position_noise_deg for n in names], float),
-                   alignment,
+    def of(cls, rig: RigConfig, geo: SampleGeometry) -> AngularSources:
+        """The rig file's stated errors and ``geo``'s calibration (a backlash the calibration
+        measured is corrected with it, its 1σ in the calibration's covariance; a stated one
+        is corrected by ``geo`` too, its uncertainty the ``backlash`` term)."""
+        names = geo.kinematics.joint_names
+        return cls(names, np.array([geo.stated_backlash_deg.get(n, 0.0) for n in names], float),
+                   np.array([rig.axes[n].position_noise_deg for n in names], float),
+                   geo.alignment,
                    float(np.degrees(rig.light_source_diameter_m / 2.0 / rig.light_distance_m)),
                    rig.sample.image_based)
 
     @property
     def independent(self) -> bool:
-        return bool(np.any(self.backlash_deg > 0) or np.any(self.noise_deg > 0))
+        return bool(np.any(self.noise_deg > 0))
+
+    @property
+    def stated_backlash(self) -> bool:
+        """Whether a stated backlash is corrected (the ``backlash`` term)."""
+        return bool(np.any(self.backlash_deg > 0))
+
+    @property
+    def joints_needed(self) -> bool:
+        """Whether a term needs the Jacobians with respect to the joints."""
+        return self.independent or self.stated_backlash
 
     @property
     def source(self) -> bool:
@@ -116,23 +144,25 @@ class AngularSources:
     @property
     def calibration_names(self) -> tuple[str, ...]:
         """The calibration's parameters: the alignment's, then (image-based rigs) the camera
-        pointing's :data:`POINTING_PARAMS`."""
+        pointing's :data:`POINTING_PARAMS` where the alignment's fit did not hold them."""
         if self.alignment is None:
             return ()
-        return self.alignment.param_names + (POINTING_PARAMS if self.pointing else ())
+        names = self.alignment.param_names
+        return names + tuple(n for n in POINTING_PARAMS if self.pointing and n not in names)
 
     def calibration_covariance(self) -> np.ndarray:
         """Covariance (P, P), deg², of :attr:`calibration_names` (an undetermined entry: 0;
-        the pointing, measured apart, uncorrelated with the rest)."""
+        a pointing measured apart from the fit: uncorrelated with the rest)."""
         a = self.alignment
         if a is None:
             return np.zeros((0, 0))
         p = len(a.param_names)
-        cov = np.zeros((len(self.calibration_names),) * 2)
+        names = self.calibration_names
+        cov = np.zeros((len(names),) * 2)
         if a.covariance_deg2 is not None and p:
             cov[:p, :p] = np.where(np.isfinite(a.covariance_deg2), a.covariance_deg2, 0.0)
-        if self.pointing:
-            cov[p:, p:] = np.diag(np.square(a.camera_pointing_sigma_deg))
+        for k, name in enumerate(names[p:], start=p):
+            cov[k, k] = a.camera_pointing_sigma_deg[POINTING_PARAMS.index(name)] ** 2
         return cov
 
 
@@ -153,15 +183,18 @@ def pose_jacobians(kin: Kinematics, joints: np.ndarray) -> np.ndarray:
     return np.stack([central_difference(moved(j)) for j in range(joints.shape[1])], axis=2)
 
 
-def calibration_jacobians(base: Kinematics, alignment: Alignment, joints: np.ndarray
+def calibration_jacobians(geo: SampleGeometry, names: tuple[str, ...], joints: np.ndarray
                           ) -> np.ndarray:
-    """d(θi, θr, Δφ)/d calibration parameter (N, 3, P) at joints (N, J)."""
+    """d(θi, θr, Δφ)/d calibration parameter ``names`` (N, 3, P) at joints (N, J): ``geo``'s
+    corrections with one parameter moved."""
+    corrections = geo.corrections
+    assert corrections is not None
 
     def moved(name: str) -> Callable[[float], np.ndarray]:
         return lambda step: CalibratedKinematics(
-            base, alignment.shifted(name, step)).poses_array(joints)
+            geo.base, corrections.shifted(name, step)).poses_array(joints)
 
-    return np.stack([central_difference(moved(n)) for n in alignment.param_names], axis=2)
+    return np.stack([central_difference(moved(n)) for n in names], axis=2)
 
 
 def folded_jacobians(jac: np.ndarray, poses: np.ndarray) -> np.ndarray:
@@ -443,12 +476,10 @@ def relative_variances(grad: np.ndarray, hess: np.ndarray, pose_cov: np.ndarray,
 
 
 def joint_draws(sources: AngularSources, jac: np.ndarray, seed: int = 0) -> np.ndarray:
-    """Coordinate errors (N, M, D) of :data:`MC_DRAWS` fixed draws of the joint errors through
-    the Jacobians (N, D, J): backlash ±b/2 with equal odds, position noise Gaussian."""
+    """Coordinate errors (N, M, D) of :data:`MC_DRAWS` fixed draws of the joints' position
+    noise (Gaussian) through the Jacobians (N, D, J)."""
     rng = np.random.default_rng(seed)
-    m, j = MC_DRAWS, len(sources.joint_names)
-    signs = rng.choice((-1.0, 1.0), size=(m, j))
-    dj = signs * sources.backlash_deg / 2.0 + rng.standard_normal((m, j)) * sources.noise_deg
+    dj = rng.standard_normal((MC_DRAWS, len(sources.joint_names))) * sources.noise_deg
     return np.swapaxes(np.matmul(jac, dj.T), 1, 2)
 
 
@@ -471,30 +502,35 @@ def source_bias(grad: np.ndarray, hess: np.ndarray, disc_cov: np.ndarray) -> np.
 
 @dataclass(frozen=True)
 class AngularTerms:
-    """Per sample: the angular variance (N, 3), sr⁻²; the calibration's standard uncertainty
-    (N, 3), sr⁻¹; the source-size bias (N, 3), relative (the value is f·(1 + bias))."""
+    """Per sample: the angular variance (N, 3), sr⁻²; the calibration's and the stated
+    backlash's standard uncertainties (N, 3), sr⁻¹; the source-size bias (N, 3), relative (the
+    value is f·(1 + bias))."""
 
     variance: np.ndarray
     calibration: np.ndarray
     source_bias: np.ndarray
+    backlash: np.ndarray
+
+    @classmethod
+    def zeros(cls, n: int) -> AngularTerms:
+        return cls(*(np.zeros((n, 3)) for _ in range(4)))
 
 
-def angular_terms(sources: AngularSources, kin: Kinematics, base: Kinematics,
-                  joints: np.ndarray, poses: np.ndarray, values: np.ndarray) -> AngularTerms:
+def angular_terms(sources: AngularSources, geo: SampleGeometry, joints: np.ndarray,
+                  poses: np.ndarray, values: np.ndarray) -> AngularTerms:
     """Each sample's angular terms (:class:`AngularTerms`; zeros where the rig states no such
     error) at read-back joints (N, J), claimed poses (N, 3) and values (N, 3): the local
-    models from the samples themselves, the Jacobians from the kinematics."""
+    models from the samples themselves, the Jacobians from ``geo``'s kinematics."""
     poses = np.asarray(poses, float)
     n = len(poses)
-    if n == 0 or not (sources.independent or sources.correlated or sources.source):
-        return AngularTerms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+    if n == 0 or not (sources.joints_needed or sources.correlated or sources.source):
+        return AngularTerms.zeros(n)
     grad, hess = with_irradiance(
         *local_log_models(poses, np.log(np.maximum(np.abs(values), 1e-300))), poses[:, 0])
-    jac = folded_jacobians(pose_jacobians(kin, joints), poses) if sources.independent else None
-    kcal = None
-    if sources.correlated:
-        assert sources.alignment is not None
-        kcal = folded_jacobians(calibration_jacobians(base, sources.alignment, joints), poses)
+    jac = (folded_jacobians(pose_jacobians(geo.kinematics, joints), poses)
+           if sources.joints_needed else None)
+    kcal = (folded_jacobians(calibration_jacobians(geo, sources.calibration_names, joints), poses)
+            if sources.correlated else None)
     disc = disc_covariance(poses, sources.source_radius_deg) if sources.source else None
     return terms_at(sources, grad, hess, values, jac, kcal, disc)
 
@@ -508,15 +544,17 @@ def terms_at(sources: AngularSources, grad: np.ndarray, hess: np.ndarray, values
     included: :func:`with_irradiance`), the Jacobians of those coordinates with respect to the
     joints (N, D, J) and to :attr:`AngularSources.calibration_names` (N, D, P), and the lamp
     disc's covariance in them (N, D, D); a term whose Jacobian or covariance is None is 0."""
-    n = len(values)
-    out = AngularTerms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+    out = AngularTerms.zeros(len(values))
     if disc_cov is not None:
         out.source_bias[:] = source_bias(grad, hess, disc_cov)
-    if joint_jac is not None:
-        sigma2 = (sources.backlash_deg / 2.0) ** 2 + sources.noise_deg**2
-        cov = np.einsum("nij,j,nkj->nik", joint_jac, sigma2, joint_jac)
+    if joint_jac is not None and sources.independent:
+        cov = np.einsum("nij,j,nkj->nik", joint_jac, sources.noise_deg**2, joint_jac)
         out.variance[:] = relative_variances(
             grad, hess, cov, lambda k: joint_draws(sources, joint_jac[k])) * values**2
+    if joint_jac is not None and sources.stated_backlash:
+        half = BACKLASH_CORRECTION_FRACTION * sources.backlash_deg / 2.0
+        cov = np.einsum("nij,j,nkj->nik", joint_jac, half**2, joint_jac)
+        out.backlash[:] = np.sqrt(relative_variances(grad, hess, cov)) * np.abs(values)
     if calibration_jac is not None:
         cov = np.einsum("nip,pq,njq->nij", calibration_jac, sources.calibration_covariance(),
                         calibration_jac)

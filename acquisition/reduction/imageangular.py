@@ -1,10 +1,10 @@
 """Angular uncertainty of an image-based reduction, per frame and bin.
 
 The terms are the point reduction's, computed by the same functions
-(:mod:`acquisition.reduction.angular`): ``angular`` (the arms' position noise and any backlash
-no calibration corrects), ``geometry_calibration`` (the calibration's 1σ: zero offsets, sample
-tilt, backlash and, on an image-based rig, the camera's pointing) and ``source_size`` (the
-lamp's disc). Three things differ from a point reduction's.
+(:mod:`acquisition.reduction.angular`): ``angular`` (the arms' position noise),
+``geometry_calibration`` (the calibration's 1σ: zero offsets, sample tilt, backlash and, on an
+image-based rig, the camera's pointing), ``backlash`` (the correction for a stated backlash)
+and ``source_size`` (the lamp's disc). Three things differ from a point reduction's.
 
 **A frame's pixels err together.** The arms stand in one pose per frame, so a joint error
 moves the geometry of every pixel of that frame at once (and the calibration's error that of
@@ -15,8 +15,9 @@ target afresh; an arm that stays put between two frames keeps its error, which t
 not follow). So a bin's ``angular`` term is
 √(Σₖ nₖ² varₖ) / n — varₖ the variance of frame-bin k's mean value, nₖ its pixels, n the
 bin's — where counting the pixels as independent would make it up to √nₖ times smaller. The
-calibration's term adds linearly over the bin's frame-bins, u = Σₖ nₖ uₖ / n (the table's rule
-for a correlated term), and so does the lamp correction's (one model corrects all of them).
+calibration's and the stated backlash's terms add linearly over the bin's frame-bins,
+u = Σₖ nₖ uₖ / n (the table's rule for a correlated term), and so does the lamp correction's
+(one model corrects all of them).
 Between bins a frame's error is shared too; the budget knows only independent and fully
 correlated terms, so ``angular`` is stored as independent between bins (as in the point
 reduction, where every sample is its own frame): a fit taking it so weighs each bin right but
@@ -64,13 +65,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from acquisition.config.rig import RigConfig
+from acquisition.geometry.alignment import POINTING_PARAMS
 from acquisition.geometry.halfdiff import halfdiff_from_vectors
 from acquisition.geometry.kinematics import Kinematics, poses_from_directions
 from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
+    BACKLASH_TERM,
     CALIBRATION_TERM,
-    POINTING_PARAMS,
     RAD,
     SOURCE_CORRECTION_FRACTION,
     SOURCE_TERM,
@@ -109,14 +111,14 @@ class FrameBins:
         t = self.terms
         return {"bins": self.bins, "count": self.count, "value": self.value,
                 "variance": t.variance, "calibration": t.calibration,
-                "source_bias": t.source_bias}
+                "source_bias": t.source_bias, "backlash": t.backlash}
 
     @classmethod
     def from_arrays(cls, a: Mapping[str, np.ndarray]) -> FrameBins:
         """Inverse of :meth:`to_arrays`."""
         return cls(np.asarray(a["bins"]), np.asarray(a["count"]), np.asarray(a["value"]),
                    AngularTerms(np.asarray(a["variance"]), np.asarray(a["calibration"]),
-                                np.asarray(a["source_bias"])))
+                                np.asarray(a["source_bias"]), np.asarray(a["backlash"])))
 
     @classmethod
     def concatenate(cls, parts: list[FrameBins]) -> FrameBins:
@@ -126,7 +128,8 @@ class FrameBins:
         return cls(cat(lambda p: p.bins), cat(lambda p: p.count), cat(lambda p: p.value),
                    AngularTerms(cat(lambda p: p.terms.variance),
                                 cat(lambda p: p.terms.calibration),
-                                cat(lambda p: p.terms.source_bias)))
+                                cat(lambda p: p.terms.source_bias),
+                                cat(lambda p: p.terms.backlash)))
 
 
 def smooth_coordinates(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -142,14 +145,14 @@ class ImageAngular:
 
     def __init__(self, rig: RigConfig, model: SampleGeometry, table: IsotropicTable) -> None:
         self.rig, self.model, self.table = rig, model, table
-        self.sources = AngularSources.of(rig, model.kinematics, model.alignment)
+        self.sources = AngularSources.of(rig, model)
         self._frames: list[FrameBins] = []
 
     @property
     def active(self) -> bool:
         """Whether the rig states any angular error (else the budget has no angular term)."""
         s = self.sources
-        return s.independent or s.correlated or s.source
+        return s.joints_needed or s.correlated or s.source
 
     def add(self, joints: Mapping[str, float], shape: tuple[int, int], pixels: Pixels,
             wi: np.ndarray, wo: np.ndarray, values: np.ndarray) -> None:
@@ -181,7 +184,7 @@ class ImageAngular:
             disc = np.einsum("kil,kjl->kij", dj, dj) * s.source_radius_deg**2 / 4.0
         terms = terms_at(
             s, grad, hess, group.value,
-            np.nan_to_num(at.joint_jacobians()) if s.independent else None,
+            np.nan_to_num(at.joint_jacobians()) if s.joints_needed else None,
             np.nan_to_num(at.calibration_jacobians(s.calibration_names)) if s.correlated
             else None, disc)
         return FrameBins(group.bins, group.count, group.value, terms)
@@ -193,6 +196,8 @@ class ImageAngular:
         if s.source:
             independent.update({k: v + "; one correction per bin" for k, v in SOURCE_TERM.items()})
         correlated = {k: v + FRAME_NOTE for k, v in CALIBRATION_TERM.items()} if s.correlated else {}
+        if s.stated_backlash:
+            correlated.update({k: v + FRAME_NOTE for k, v in BACKLASH_TERM.items()})
         return independent, correlated
 
     def apply(self, frames: list[FrameBins] | None = None) -> None:
@@ -227,8 +232,8 @@ class ImageAngular:
                     t.scale_bins(binned(total(k * corrected) / total(k * fb.value)))
                 t.set_bin_term(name, description, binned(u))
             for name, description in correlated.items():
-                t.set_bin_term(name, description, binned(total(k * terms.calibration) / n),
-                               correlated=True)
+                u = terms.backlash if name in BACKLASH_TERM else terms.calibration
+                t.set_bin_term(name, description, binned(total(k * u) / n), correlated=True)
 
 
 @dataclass(frozen=True)
@@ -349,8 +354,8 @@ class _PixelCoordinates:
         """(K, 4, P) d coordinates / d calibration parameter ``names`` (the alignment's, then
         the camera pointing's)."""
         model = self.model
-        alignment = model.alignment
-        assert alignment is not None
+        corrections = model.corrections
+        assert corrections is not None
 
         def moved(name: str) -> Callable[[float], np.ndarray]:
             if name in POINTING_PARAMS:
@@ -358,7 +363,7 @@ class _PixelCoordinates:
                 return lambda step: self.coords(pointing_deg=tuple(  # type: ignore[arg-type]
                     np.asarray(model.pointing_deg) + step * axis))
             return lambda step: self.coords(
-                CalibratedKinematics(model.base, alignment.shifted(name, step)))
+                CalibratedKinematics(model.base, corrections.shifted(name, step)))
 
         return self._jacobian([moved(n) for n in names])
 

@@ -13,12 +13,9 @@ with I the light's radiant intensity (W·sr⁻¹) and r the light–surface dist
 Conventions
 -----------
 * Pixels are superpixels (2×2 CFA cells, the grid of :func:`calibration.linearize.linearize`);
-  pixel (row i, column j) is centred at image coordinates (x, y) = (j, i); x grows to the
-  right, y downwards, and the camera looks along its +z axis (OpenCV's pinhole model):
-  x = fx · X/Z + cx, y = fy · Y/Z + cy.
-* The camera sits ``camera_distance_m`` along the camera direction from the origin and looks
-  at the origin. Image "up" is the sample frame's +z projected onto the image plane; with the
-  camera exactly at the zenith, up is −x (the limit of that rule at azimuth 0).
+  the camera is :class:`~acquisition.geometry.pinhole.PinholeCamera` (its module states the
+  conventions: pixel centres, image axes, the camera looking at the origin, image "up" the
+  sample frame's +z projected, the pointing error).
 * The light is a point source ``light_distance_m`` along the light direction.
 * The local shading frame's tangents follow Duff et al. (2017), "Building an orthonormal
   basis, revisited"; for the flat sample it is the sample frame itself. Isotropic BRDFs do not
@@ -27,104 +24,19 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
+from acquisition.geometry.pinhole import PinholeCamera
 from drivers.errors import ConfigError
 
 Pixels = tuple[np.ndarray, np.ndarray]
 """Pixel indices (rows, columns), superpixels, each of length K."""
-ZENITH_TOLERANCE = 1e-9
-"""|sin θ| below which the camera counts as exactly at the zenith (up = −x)."""
 
 
 # ---------------------------------------------------------------------------- camera
-@dataclass(frozen=True)
-class PinholeCamera:
-    """A calibrated pinhole camera in the sample frame.
-
-    Attributes
-    ----------
-    fx, fy, cx, cy:
-        Intrinsics in superpixels.
-    shape:
-        Image size (rows, columns) in superpixels.
-    position:
-        Centre of projection (3,), m.
-    rotation:
-        (3, 3) rows = the camera's x (right), y (down) and z (forward) axes in the sample frame.
-    """
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    shape: tuple[int, int]
-    position: np.ndarray
-    rotation: np.ndarray
-
-    @classmethod
-    def looking_at_origin(
-        cls,
-        intrinsics: tuple[float, float, float, float],
-        shape: tuple[int, int],
-        camera_dir: np.ndarray,
-        distance_m: float,
-    ) -> PinholeCamera:
-        """Camera ``distance_m`` along unit ``camera_dir`` looking at the origin (see module doc)."""
-        c = np.asarray(camera_dir, dtype=np.float64)
-        c = c / np.linalg.norm(c)
-        forward = -c
-        up = np.array([0.0, 0.0, 1.0]) - c[2] * c  # +z projected onto the image plane
-        norm = np.linalg.norm(up)
-        if norm < ZENITH_TOLERANCE:
-            up = np.array([-1.0, 0.0, 0.0]) if c[2] > 0 else np.array([1.0, 0.0, 0.0])
-        else:
-            up = up / norm
-        right = np.cross(forward, up)
-        right /= np.linalg.norm(right)
-        down = np.cross(forward, right)
-        fx, fy, cx, cy = intrinsics
-        return cls(fx, fy, cx, cy, shape, c * distance_m, np.stack([right, down, forward]))
-
-    def pointed(self, x_deg: float, y_deg: float) -> PinholeCamera:
-        """The camera with its optical axis turned towards its image's +x by ``x_deg``, then
-        towards +y by ``y_deg`` (a pointing error: the point it aimed at moves to −x, −y)."""
-        if not x_deg and not y_deg:
-            return self
-        right, down, forward = self.rotation
-        f = forward + np.tan(np.radians(x_deg)) * right + np.tan(np.radians(y_deg)) * down
-        f /= np.linalg.norm(f)
-        r = right - (right @ f) * f
-        r /= np.linalg.norm(r)
-        return replace(self, rotation=np.stack([r, np.cross(f, r), f]))
-
-    def ray_directions(self, pixels: Pixels | None = None) -> np.ndarray:
-        """Unit ray directions (rows, columns, 3) through every pixel centre, sample frame;
-        with ``pixels`` (rows, columns: index arrays of length K), (K, 3) through those."""
-        rx, ry, rz = self.rotation
-        if pixels is not None:
-            x = (np.asarray(pixels[1], dtype=np.float64) - self.cx) / self.fx
-            y = (np.asarray(pixels[0], dtype=np.float64) - self.cy) / self.fy
-            d = x[:, None] * rx + y[:, None] * ry + rz
-        else:
-            h, w = self.shape
-            x = (np.arange(w, dtype=np.float64) - self.cx) / self.fx
-            y = (np.arange(h, dtype=np.float64) - self.cy) / self.fy
-            d = x[None, :, None] * rx + y[:, None, None] * ry + rz
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        return d
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Image coordinates (x, y) in superpixels of points (…, 3) in the sample frame."""
-        cam = (np.asarray(points, dtype=np.float64) - self.position) @ self.rotation.T
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return (self.fx * cam[..., 0] / cam[..., 2] + self.cx,
-                    self.fy * cam[..., 1] / cam[..., 2] + self.cy)
-
-
 def camera_intrinsics(rig: RigConfig, shape: tuple[int, int]) -> tuple[float, float, float, float]:
     """(fx, fy, cx, cy) in superpixels; a missing principal point is the image centre."""
     k: CameraIntrinsics | None = rig.camera.intrinsics
@@ -133,9 +45,7 @@ def camera_intrinsics(rig: RigConfig, shape: tuple[int, int]) -> tuple[float, fl
             f"{rig.path}: image-based measurement needs the camera's pinhole model: "
             "add [camera.intrinsics] with fx (superpixels)"
         )
-    h, w = shape
-    return (k.fx, k.fy, (w - 1) / 2.0 if k.cx is None else k.cx,
-            (h - 1) / 2.0 if k.cy is None else k.cy)
+    return k.at(shape)
 
 
 # ---------------------------------------------------------------------------- sample shapes

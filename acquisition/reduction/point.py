@@ -26,14 +26,17 @@ ROI — and every sample carries two terms into its bin:
 On a rig whose file states backlash, position noise or a lamp of finite size, or with a
 geometric calibration applied (:mod:`acquisition.reduction.angular`), a sample also carries
 
-* ``angular`` (independent): where the arms really stood, through the BRDF's local slope;
+* ``angular`` (independent): the arms' position noise, through the BRDF's local slope;
 * ``source_size`` (independent): the uncertainty of the correction for the lamp's blur (the
   value is corrected for it);
-* ``geometry_calibration`` (correlated): the calibration's own 1σ.
+* ``geometry_calibration`` (correlated): the calibration's own 1σ;
+* ``backlash`` (correlated): the uncertainty of the correction for a backlash the rig file
+  states (each arm stands b/2 behind the side every target is approached from: corrected).
 
-With a geometric calibration (the bundle's ``geometry`` section) the read-back joints go
-through the calibrated model (:class:`~acquisition.reduction.samplegeometry.SampleGeometry`):
-it gives the samples' angles, cos θi (and the white reference's) and their bins.
+With a geometric calibration (the bundle's ``geometry`` section) or a stated backlash the
+read-back joints go through the corrected model
+(:class:`~acquisition.reduction.samplegeometry.SampleGeometry`): it gives the samples'
+angles, cos θi (and the white reference's) and their bins.
 
 Each bin's ``std_error`` is the root sum of squares of its terms;
 :attr:`Reduction.predicted_variance` is its square. Each bin also keeps the mean read-back
@@ -63,6 +66,7 @@ from acquisition.geometry.kinematics import Pose
 from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
+    BACKLASH_TERM,
     CALIBRATION_TERM,
     SOURCE_CORRECTION_FRACTION,
     SOURCE_TERM,
@@ -435,18 +439,19 @@ def _budget(samples: list[_Sample], rig: RigConfig, geo: SampleGeometry
     white-reference terms, and where the rig states backlash or position noise, or a geometric
     calibration is applied, the angular terms (:mod:`acquisition.reduction.angular`, over all
     samples)."""
-    sources = AngularSources.of(rig, geo.kinematics, geo.alignment)
+    sources = AngularSources.of(rig, geo)
     independent, correlated = dict(UNCERTAINTY_TERMS[0]), dict(UNCERTAINTY_TERMS[1])
     for on, term, where in ((sources.independent, ANGULAR_TERM, independent),
                             (sources.source, SOURCE_TERM, independent),
-                            (sources.correlated, CALIBRATION_TERM, correlated)):
+                            (sources.correlated, CALIBRATION_TERM, correlated),
+                            (sources.stated_backlash, BACKLASH_TERM, correlated)):
         if on:
             where.update(term)
     names = geo.kinematics.joint_names
     joints = np.array([[s.joints[n] for n in names] for s in samples]).reshape(-1, len(names))
     claimed = np.array([s.read_back.as_tuple() for s in samples]).reshape(-1, 3)
     values = np.array([s.value for s in samples]).reshape(-1, 3)
-    ang = angular_terms(sources, geo.kinematics, geo.base, joints, claimed, values)
+    ang = angular_terms(sources, geo, joints, claimed, values)
     out = []
     for k, s in enumerate(samples):
         variances = {"noise": s.noise_var[None, :]}
@@ -459,6 +464,8 @@ def _budget(samples: list[_Sample], rig: RigConfig, geo: SampleGeometry
                                         * value)[None, :] ** 2
         if sources.correlated:
             uncertainties["geometry_calibration"] = ang.calibration[k][None, :]
+        if sources.stated_backlash:
+            uncertainties["backlash"] = ang.backlash[k][None, :]
         out.append(_Binned(s.step, s.bin_pose, s.read_back, value, variances, uncertainties))
     return independent, correlated, out
 
@@ -474,9 +481,9 @@ def _bin(table: IsotropicTable, binned: list[_Binned]) -> None:
 
 
 def _reference_cos(geo: SampleGeometry, records: list[StepRecord], rig: RigConfig) -> float:
-    """cos θi of the white reference: the rig file's angle, or with a geometric calibration
-    the mean over the reference steps' read-back poses."""
-    if geo.alignment is None:
+    """cos θi of the white reference: the rig file's angle, or with a corrected geometry (a
+    calibration, a stated backlash) the mean over the reference steps' read-back poses."""
+    if geo.corrections is None:
         return float(np.cos(np.radians(rig.white_reference.theta_i)))
     refs = [r for r in records if r.kind == REFERENCE]
     return float(np.mean([np.cos(np.radians(geo.read_back(r).theta_i)) for r in refs]))

@@ -60,6 +60,15 @@ OPEN_PRIORITY, MERGE_PRIORITY, FRAME_PRIORITY = 20, 10, 0
 """Dask task priorities: sessions open first (the bar learns every total), merges run before
 new frames (partials do not pile up in the workers' memory)."""
 CONNECT_TIMEOUT_S = 10.0
+LOCAL_CLUSTER: dict[str, Any] = {
+    "processes": True, "threads_per_worker": 1, "dashboard_address": None,
+    "silence_logs": logging.ERROR,
+    # the scheduler's HTTP server (health, metrics) runs even without a dashboard: on a free
+    # port, not 8787, which another cluster on the host may hold
+    "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"},
+}
+"""``distributed.LocalCluster`` options of ``--workers N``: worker processes of one thread,
+no dashboard, quiet logs."""
 
 
 class DistributedError(GonioError, RuntimeError):
@@ -88,8 +97,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     if scheduler is None:
         if workers < 1:  # type: ignore[operator]
             raise DistributedError(f"--workers must be ≥ 1, got {workers}")
-        with dist.LocalCluster(n_workers=workers, processes=True, threads_per_worker=1,
-                               dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+        with dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER) as cluster, \
                 dist.Client(cluster) as client:
             check_versions(client)
             yield client

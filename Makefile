@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.gonio-installed
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,bluesky]'
+	$(PY) -m pip install --quiet -e '.[test,bluesky,distributed]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -92,11 +92,13 @@ def dynamic_import(call: ast.Call, package: str) -> str | None:
     return resolve_relative(dotted or None, len(arg.value) - len(dotted), package)
 
 
-def runtime_imports(tree: ast.AST, root: Path, package: str = "") -> list[tuple[int, str]]:
-    """Gonio modules imported at run time (``if TYPE_CHECKING:`` blocks are skipped): for
-    ``from A import b`` the module ``A.b`` when it is one, else ``A``; relative imports are
-    resolved against ``package`` (the importing file's), and dynamic imports of string
-    literals (:data:`DYNAMIC_IMPORTS`) count as imports."""
+def runtime_imports(tree: ast.AST, root: Path, package: str = "",
+                    tops: tuple[str, ...] | None = PACKAGES) -> list[tuple[int, str]]:
+    """Modules of ``tops`` (default: gonio's; None: any) imported at run time (``if
+    TYPE_CHECKING:`` blocks are skipped): for ``from A import b`` the module ``A.b`` when it
+    is one, else ``A``; relative imports are resolved against ``package`` (the importing
+    file's), and dynamic imports of string literals (:data:`DYNAMIC_IMPORTS`) count as
+    imports."""
     found: list[tuple[int, str]] = []
 
     def is_module(dotted: str) -> bool:
@@ -119,7 +121,7 @@ def runtime_imports(tree: ast.AST, root: Path, package: str = "") -> list[tuple[
             visit(child)
 
     visit(tree)
-    return [(n, m) for n, m in found if m.split(".")[0] in PACKAGES]
+    return [(n, m) for n, m in found if tops is None or m.split(".")[0] in tops]
 
 
 def import_violations(root: Path, rules: dict[str, tuple[str, ...]]) -> list[Violation]:
@@ -136,6 +138,33 @@ def import_violations(root: Path, rules: dict[str, tuple[str, ...]]) -> list[Vio
                 allowed = room is not None and (own or any(_under(imported, p) for p in rules[room]))
                 into_cli = _under(imported, "acquisition.cli") and not _under(module, "acquisition.cli")
                 if into_cli or not allowed:
+                    out.append(Violation(module, line, imported))
+    return out
+
+
+def extras_rules(architecture: Path) -> dict[str, tuple[str, ...]]:
+    """``{third-party package: the modules that may import it}`` from the optional extras'
+    table of ARCHITECTURE.md (rows ``| gonio[extra] | `package`, … | `module`, … |``)."""
+    rules: dict[str, tuple[str, ...]] = {}
+    for line in architecture.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("gonio["):
+            for package in re.findall(r"`([\w.]+)`", cells[1]):
+                rules[package] = tuple(re.findall(r"`([\w.]+)`", cells[2]))
+    return rules
+
+
+def extras_violations(root: Path, rules: dict[str, tuple[str, ...]]) -> list[Violation]:
+    """Every run-time import of an optional extra's package outside the modules its row
+    names."""
+    out: list[Violation] = []
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            module = module_name(path, root)
+            tree = ast.parse(path.read_text())
+            for line, imported in runtime_imports(tree, root, package_of(path, root), None):
+                allowed = rules.get(imported.split(".")[0])
+                if allowed is not None and not any(_under(module, m) for m in allowed):
                     out.append(Violation(module, line, imported))
     return out
 
@@ -371,6 +400,19 @@ def test_type_checking_imports_are_not_run_time_dependencies(tmp_path: Path) -> 
                                     "    from acquisition.session.folder import SessionFolder\n",
     })
     assert import_violations(root, RULES) == []
+
+
+def test_optional_extras_are_imported_only_where_the_table_says(tmp_path: Path) -> None:
+    rules = extras_rules(ROOT / "ARCHITECTURE.md")
+    assert rules["dask"] == rules["distributed"] == ("acquisition.reduction.distributed",)
+    assert rules["bluesky"] == rules["ophyd_async"] == ("acquisition.bluesky",)
+    bad = extras_violations(ROOT, rules)
+    assert not bad, "optional extras imported where ARCHITECTURE.md does not allow:\n" + \
+        "\n".join(map(str, bad))
+    root = _tree(tmp_path, {"acquisition/reduction/point.py": "def f():\n    import dask\n",
+                            "acquisition/reduction/distributed.py": "import distributed\n"})
+    assert [(v.module, v.imported) for v in extras_violations(root, rules)] == [
+        ("acquisition.reduction.point", "dask")]
 
 
 def test_nothing_outside_the_cli_prints_or_prompts() -> None:

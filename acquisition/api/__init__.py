@@ -23,6 +23,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "predicted_step_s", "step_durations", "run_session", "capture", "resume",
         "ScriptedSession", "scripted_session", "reduce",
     ),
+    "acquisition.api.library": ("reduce_many", "table_paths"),
+    "acquisition.reduction.distributed": ("DistributedError",),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
     "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty", "check",
                                  "CheckReport", "compare", "report", "ReportResult",
@@ -110,6 +112,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         report,
     )
     from acquisition.api.demo import DemoResult, run_demo
+    from acquisition.api.library import reduce_many, table_paths
     from acquisition.api.sessions import (
         CaptureResult,
         OnOpen,
@@ -161,6 +164,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from acquisition.planning.planner import Planner, Reason, Rejection, Sweep
     from acquisition.reduction import CHECKPOINT_EVERY
     from acquisition.reduction.checkpoint import checkpoint_path
+    from acquisition.reduction.distributed import DistributedError
     from acquisition.reduction.image import ImageReducer
     from acquisition.reduction.live import LiveReduction
     from acquisition.reduction.point import Reduction, reduce_session

@@ -410,7 +410,13 @@ def reduce(
     else:
         result = reduce_session(session_dir, progress, bundle=calibration, checkpoint=resume,
                                 checkpoint_every=checkpoint_every)
-    result.table.save_h5(out, inputs=(path,), merl=getattr(result, "merl", None))
-    with suppress(FileNotFoundError):
-        resume.unlink()
+    write_table(result, out, path)
     return result
+
+
+def write_table(result: Reduction, out: str | Path, session: str | Path) -> None:
+    """Save a reduction's table (and an image-based session's MERL table in it) at ``out``
+    atomically, then delete the checkpoint beside it: the table supersedes it."""
+    result.table.save_h5(out, inputs=(session,), merl=getattr(result, "merl", None))
+    with suppress(FileNotFoundError):
+        checkpoint_path(out).unlink()

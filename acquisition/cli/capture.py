@@ -13,7 +13,7 @@ from acquisition.cli.progress import StepBar, say, step_bar
 COMMANDS = {
     "capture": "capture a plan on a rig into a new session folder",
     "resume": "continue an interrupted session",
-    "reduce": "linearize a session's frames into a BRDF table (HDF5)",
+    "reduce": "linearize sessions' frames into BRDF tables (HDF5), here or on a Dask cluster",
 }
 
 
@@ -37,8 +37,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_resume)
 
     p = sub.add_parser("reduce", help=COMMANDS["reduce"])
-    p.add_argument("session", help="session folder")
-    add_out(p, "table file (default: SESSION/brdf.h5)", aliases=("--output",))
+    p.add_argument("session", nargs="+", help="session folder(s)")
+    add_out(p, "table file (default: SESSION/brdf.h5); with several sessions a folder, each "
+               "table FOLDER/SESSION_NAME.h5 (default: each SESSION/brdf.h5)",
+            aliases=("--output",))
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, metavar="N",
+                       help="reduce on a local Dask cluster of N worker processes "
+                            "(pip install 'gonio[distributed]')")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="reduce on a running Dask cluster whose workers see the sessions at "
+                            "the same paths")
     p.add_argument("--calibration", metavar="BUNDLE",
                    help="calibration bundle to apply (default: the session's own copy)")
     p.add_argument("--checkpoint-every", type=_frames, default=api.CHECKPOINT_EVERY, metavar="N",
@@ -47,6 +56,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"default {api.CHECKPOINT_EVERY})")
     add_json(p)
     p.set_defaults(func=run_reduce)
+
+
+def _workers(text: str) -> int:
+    """A number of worker processes ≥ 1 (argparse type)."""
+    n = _frames(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a number of workers ≥ 1, got {text!r}")
+    return n
 
 
 def _frames(text: str) -> int:
@@ -133,9 +150,19 @@ def run_resume(args: argparse.Namespace) -> int:
 
 def run_reduce(args: argparse.Namespace) -> int:
     with step_bar("reduce", unit="frame") as bar:
-        result = api.reduce(args.session, args.out, progress=lambda d, t: bar(d, t),
-                            calibration=args.calibration, checkpoint_every=args.checkpoint_every)
-    out = Path(args.out or Path(args.session) / "brdf.h5")
+        results = api.reduce_many(args.session, args.out, progress=lambda d, t: bar(d, t),
+                                  calibration=args.calibration,
+                                  checkpoint_every=args.checkpoint_every, workers=args.workers,
+                                  scheduler=args.scheduler)
+    outs = api.table_paths(args.session, args.out)
+    reports = [_reduce_report(out, result) for out, result in zip(outs, results, strict=True)]
+    payload = reports[0][0] if len(reports) == 1 else {"tables": [r[0] for r in reports]}
+    report(args, payload, [line for _, lines in reports for line in lines])
+    return 0
+
+
+def _reduce_report(out: Path, result: api.Reduction) -> tuple[dict[str, object], list[str]]:
+    """One reduced table's JSON object and text lines."""
     table = result.table
     measured = int((table.count > 0).sum())
     rel = api.median_relative_uncertainty(table)
@@ -150,10 +177,9 @@ def run_reduce(args: argparse.Namespace) -> int:
                      f"{table.provenance.get('noise_model', 'unknown')})"
                      + (f"; repeats scatter {ratio:.2f}× the prediction over {repeats} bins"
                         if repeats else ""))
-    report(args, {"table": out, "frames": result.frames, "measured_bins": measured,
-                  "references": result.references, "drift_pct": result.drift_pct,
-                  "median_rel_uncertainty_pct": rel,
-                  "noise_model": table.provenance.get("noise_model"),
-                  "scatter_ratio": ratio, "scatter_bins": repeats,
-                  "resumed_frames": resumed}, lines)
-    return 0
+    return ({"table": out, "frames": result.frames, "measured_bins": measured,
+             "references": result.references, "drift_pct": result.drift_pct,
+             "median_rel_uncertainty_pct": rel,
+             "noise_model": table.provenance.get("noise_model"),
+             "scatter_ratio": ratio, "scatter_bins": repeats,
+             "resumed_frames": resumed}, lines)

@@ -1,6 +1,7 @@
 """Reduction of a session's frames into BRDF tables: point (ROI) and per-pixel reduction,
 the imaging geometry of image-based rigs, the geometric calibration's model of where each
-sample was taken, its angular uncertainty, and the live estimate.
+sample was taken, its angular uncertainty, the live estimate, and reduction on a Dask cluster
+(``distributed``: the optional extra ``gonio[distributed]``, imported only when asked for).
 
 May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
 ``acquisition.tables``, ``acquisition.formats``, ``calibration``, ``drivers.errors``.

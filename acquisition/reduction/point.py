@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -313,9 +313,12 @@ class PointReducer:
     @classmethod
     def open(cls, session_dir: str | Path | SessionFolder, bundle: str | Path | None = None,
              reference_axis: str = "step", geometry: bool = True,
-             progress: Callable[[int, int], None] | None = None) -> PointReducer:
+             progress: Callable[[int, int], None] | None = None,
+             signals: Mapping[int, FrameSignal] | None = None) -> PointReducer:
         """Read every frame (``progress(done, total)`` after each) and work out each sample's
-        value and budget (see :func:`reduce_session` for the arguments)."""
+        value and budget (see :func:`reduce_session` for the arguments). ``signals``: frames'
+        signals already read elsewhere (:func:`read_signal`, e.g. on Dask workers), by
+        :attr:`SignalFrame.step`; the frames not in it are read here."""
         if reference_axis not in ("step", "time"):
             raise SessionError(f"reference_axis must be 'step' or 'time', got {reference_axis!r}")
         t0 = time.monotonic()
@@ -325,7 +328,7 @@ class PointReducer:
         geo = SampleGeometry.of(rig, cal, calibrated=geometry)
         records, complete = _done_records(folder)
         frames = _SessionFrames(folder, rig, cal, _reference_coordinates(records, reference_axis),
-                                FrameCheck(folder.path))
+                                FrameCheck(folder.path), signals or {})
         refs = _reference_signals(frames, records)
         white = _WhiteScale.of(refs, rig, _reference_cos(geo, records, rig))
         drift = _drift_pct(refs)
@@ -518,6 +521,43 @@ def _reference_coordinates(records: list[StepRecord], reference_axis: str) -> di
 
 
 @dataclass(frozen=True)
+class SignalFrame:
+    """One frame a point reduction reads: a white-reference or sample row, or the rows of an
+    HDR bracket (``bracket``: merged before the ROI mean)."""
+
+    rows: tuple[StepRecord, ...]
+    bracket: bool = False
+
+    @property
+    def step(self) -> int:
+        """The journal step the frame's signal is known by (a bracket's first row)."""
+        return self.rows[0].step
+
+
+def signal_frames(session_dir: str | Path | SessionFolder) -> list[SignalFrame]:
+    """Every frame a point reduction of the session reads: the white references, then the
+    samples (plain frames and complete HDR brackets), in journal order."""
+    folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
+    records, complete = _done_records(folder)
+    poses, brackets = _samples(records, complete)
+    refs = [SignalFrame((r,)) for r in records if r.kind == REFERENCE]
+    return refs + [SignalFrame((r,)) if (g := hdr_group(r.note)) is None
+                   else SignalFrame(tuple(brackets[g]), bracket=True) for r in poses]
+
+
+def read_signal(folder: SessionFolder, rig: RigConfig, cal: CalibrationBundle | None,
+                frame: SignalFrame, check: FrameCheck) -> FrameSignal | None:
+    """The ROI signal of one frame (an HDR bracket's merge), or None when a RAW file cannot be
+    decoded (noted in ``check``)."""
+    rec = frame.rows[0]
+    if not frame.bracket:
+        return check.load(rec.frame, lambda: sample_signal(
+            folder.frames_dir / str(rec.frame), rig, rec.step, cal))
+    return check.load(rec.frame, lambda: bracket_signal(
+        [folder.frames_dir / str(r.frame) for r in frame.rows], rig, rec.step, cal))
+
+
+@dataclass(frozen=True)
 class _SessionFrames:
     """Reads a session's frames into ROI signals stamped with their reference coordinate."""
 
@@ -528,22 +568,25 @@ class _SessionFrames:
     """Reference-interpolation coordinate of each step (:func:`_reference_coordinates`)."""
     check: FrameCheck
     """Where frames that cannot be decoded are noted (None is returned for them)."""
+    known: Mapping[int, FrameSignal] = dataclasses.field(default_factory=dict)
+    """Signals read elsewhere, by step (:func:`read_signal`)."""
+
+    def read(self, frame: SignalFrame) -> FrameSignal | None:
+        """A frame's signal, stamped with its reference coordinate."""
+        fs = self.known.get(frame.step)
+        if fs is None:
+            fs = read_signal(self.folder, self.rig, self.cal, frame, self.check)
+        return None if fs is None else dataclasses.replace(fs, at=self.when[frame.step])
 
     def frame(self, rec: StepRecord) -> FrameSignal | None:
         """The ROI signal of one plain frame."""
-        fs = self.check.load(rec.frame, lambda: sample_signal(
-            self.folder.frames_dir / str(rec.frame), self.rig, rec.step, self.cal))
-        return None if fs is None else dataclasses.replace(fs, at=self.when[rec.step])
+        return self.read(SignalFrame((rec,)))
 
     def sample(self, rec: StepRecord, brackets: dict[int, list[StepRecord]]
                ) -> FrameSignal | None:
         """The ROI signal of a sample: a plain frame, or the merge of its HDR bracket."""
         g = hdr_group(rec.note)
-        if g is None:
-            return self.frame(rec)
-        return self.check.load(rec.frame, lambda: bracket_signal(
-            [self.folder.frames_dir / str(r.frame) for r in brackets[g]], self.rig, rec.step,
-            self.cal))
+        return self.frame(rec) if g is None else self.read(SignalFrame(tuple(brackets[g]), True))
 
 
 def _reference_signals(frames: _SessionFrames, records: list[StepRecord]) -> list[FrameSignal]:

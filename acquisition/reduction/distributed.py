@@ -1,0 +1,347 @@
+"""Reduction on a Dask cluster: the frames of many sessions reduced by the workers, one table
+per session, bit for bit the table a local reduction gives.
+
+Dask is the optional extra ``gonio[distributed]``: this module is imported only when a
+reduction asks for workers or a scheduler, and imports ``distributed`` only then
+(:func:`dask_client`; without it, one line naming ``pip install 'gonio[distributed]'``).
+
+How a session is reduced (:func:`reduce_on_cluster`):
+
+* a worker opens the session (an image-based session's :class:`ImageReducer`: journal, white
+  references; a point session's rig and bundle) — the client reads no frame;
+* each frame (an HDR bracket is one frame) is one task: an image-based frame becomes a
+  partial table (:mod:`acquisition.tables.partial`), a point frame its ROI signal (the point
+  budget's angular terms need every sample before any is binned, so the client bins the
+  session's few hundred samples once every signal is in);
+* an image-based session's partials are merged on the workers, :data:`MERGE_FAN_IN` at a
+  time, in frame order (a tree of futures, merges before new frames), so the client receives
+  one merged partial per session and finishes the tables from it.
+
+Sums are exact, so the split, the merge order and the number of workers change no bit. The
+workers' gonio, numpy and numba versions are checked against the client's before any work
+(:func:`check_versions`). A frame that cannot be decoded is collected as in a local reduction
+and the session fails with the same one-line error; any other failure on a worker becomes one
+line naming the session (:class:`DistributedError`). Workers and client must see the
+sessions (and the calibration bundle) at the same absolute paths.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from acquisition.reduction.badframes import BadFramesError, FrameCheck
+from acquisition.reduction.image import ImageReducer
+from acquisition.reduction.point import (
+    FrameSignal,
+    PointReducer,
+    Reduction,
+    SignalFrame,
+    find_bundle,
+    read_signal,
+    signal_frames,
+)
+from acquisition.session.folder import SessionFolder
+from acquisition.session.journal import StepRecord
+from acquisition.tables import partial as partials
+from acquisition.tables.partial import ReductionPartial
+from calibration.bundle import CalibrationBundle
+from drivers.errors import GonioError
+
+INSTALL = "pip install 'gonio[distributed]'"
+MERGE_FAN_IN = 4
+"""Partials merged by one task of the tree."""
+OPEN_PRIORITY, MERGE_PRIORITY, FRAME_PRIORITY = 20, 10, 0
+"""Dask task priorities: sessions open first (the bar learns every total), merges run before
+new frames (partials do not pile up in the workers' memory)."""
+CONNECT_TIMEOUT_S = 10.0
+LOCAL_CLUSTER: dict[str, Any] = {
+    "processes": True, "threads_per_worker": 1, "dashboard_address": None,
+    "silence_logs": logging.ERROR,
+    # the scheduler's HTTP server (health, metrics) runs even without a dashboard: on a free
+    # port, not 8787, which another cluster on the host may hold
+    "scheduler_kwargs": {"dashboard_address": "127.0.0.1:0"},
+}
+"""``distributed.LocalCluster`` options of ``--workers N``: worker processes of one thread,
+no dashboard, quiet logs."""
+
+
+class DistributedError(GonioError, RuntimeError):
+    """The Dask cluster cannot be used (extra missing, scheduler unreachable, other versions
+    on the workers) or a worker failed."""
+
+
+def _distributed() -> Any:
+    """The ``distributed`` package, or one line saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise DistributedError(f"Dask is not installed: {INSTALL} (or reduce without "
+                               "--workers/--scheduler)") from None
+    return distributed
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A ``distributed.Client`` on a new ``LocalCluster`` of ``workers`` processes (one thread
+    each, no dashboard) or on the cluster at ``scheduler`` (``tcp://HOST:PORT``), its workers'
+    versions checked; the local cluster is shut down on exit."""
+    if (workers is None) == (scheduler is None):
+        raise DistributedError("give a number of workers or a scheduler address, not both")
+    dist = _distributed()
+    if scheduler is None:
+        if workers < 1:  # type: ignore[operator]
+            raise DistributedError(f"--workers must be ≥ 1, got {workers}")
+        with dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER) as cluster, \
+                dist.Client(cluster) as client:
+            check_versions(client)
+            yield client
+        return
+    try:
+        client = dist.Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise DistributedError(f"cannot reach the Dask scheduler at {scheduler} ({exc}): start "
+                               "it (`dask scheduler`) or check the address") from None
+    with client:
+        check_versions(client)
+        yield client
+
+
+def _versions_line(versions: dict[str, str]) -> str:
+    return ", ".join(f"{k} {versions.get(k, 'missing')}" for k in partials.SOFTWARE)
+
+
+def check_versions(client: Any) -> None:
+    """Refuse, before any work, a cluster without workers or with a worker whose gonio, numpy
+    or numba differs from the client's (partials of other versions do not merge)."""
+    if not client.scheduler_info().get("workers"):
+        raise DistributedError(f"the Dask cluster at {client.scheduler.address} has no worker: "
+                               "start some (`dask worker ADDRESS`)")
+    here = partials.software_versions()
+    try:
+        there = client.run(partials.software_versions)
+    except Exception as exc:  # a worker without gonio cannot even unpickle the call
+        raise DistributedError(f"a Dask worker cannot run gonio ({type(exc).__name__}: "
+                               f"{_first_line(exc)}): install gonio[distributed] on every "
+                               "worker") from None
+    for address, versions in sorted(there.items()):
+        if versions != here:
+            raise DistributedError(f"Dask worker {address} runs {_versions_line(versions)}; this "
+                                   f"client runs {_versions_line(here)}: install the same "
+                                   "versions on every worker")
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+# ------------------------------------------------------------------ what the workers run
+@dataclass(frozen=True)
+class Piece:
+    """What some frames of a session gave: their merged partial (None: no readable frame)
+    and the frames that could not be decoded, in frame order."""
+
+    partial: ReductionPartial | None
+    bad: tuple[str, ...] = ()
+
+    def merge(self, other: Piece) -> Piece:
+        if self.partial is None or other.partial is None:
+            part = self.partial or other.partial
+        else:
+            part = self.partial.merge(other.partial)
+        return Piece(part, self.bad + other.bad)
+
+
+@dataclass(frozen=True)
+class PointSource:
+    """A point session opened on a worker: what reading a frame's ROI signal needs, and the
+    frames to read."""
+
+    folder: SessionFolder
+    cal: CalibrationBundle | None
+    frames: list[SignalFrame]
+
+
+def open_session(session: Path, bundle: str | None) -> ImageReducer | PointSource:
+    """(worker) An image-based session's reducer, or a point session's :class:`PointSource`."""
+    folder = SessionFolder(session)
+    if folder.rig().sample.image_based:
+        return ImageReducer.open(folder, bundle)
+    return PointSource(folder, find_bundle(folder, bundle), signal_frames(folder))
+
+
+def image_piece(reducer: ImageReducer, frames: list[list[StepRecord]]) -> Piece:
+    """(worker) The partial tables of image frames (normally one), undecodable ones noted."""
+    own = dataclasses.replace(reducer, check=FrameCheck(reducer.folder.path))
+    try:
+        return Piece(own.partial(frames))
+    except BadFramesError:
+        return Piece(None, tuple(own.check.bad))
+
+
+def point_signal(source: PointSource, frame: SignalFrame) -> tuple[FrameSignal | None, str | None]:
+    """(worker) A point frame's ROI signal, or (None, the frame's name) when undecodable."""
+    check = FrameCheck(source.folder.path)
+    signal = read_signal(source.folder, source.folder.rig(), source.cal, frame, check)
+    return signal, (check.bad[0] if check.bad else None)
+
+
+def merge_pieces(*pieces: Piece) -> Piece:
+    """(worker) One piece of several, in the order given."""
+    out = pieces[0]
+    for p in pieces[1:]:
+        out = out.merge(p)
+    return out
+
+
+# ------------------------------------------------------------------ what the client runs
+@dataclass
+class _Session:
+    """The client's view of one session under reduction."""
+
+    path: Path
+    opened: Any
+    """The future of :func:`open_session`."""
+    source: ImageReducer | PointSource | None = None
+    """Its result, once open."""
+    frames: list[Any] = field(default_factory=list)
+    signals: dict[int, tuple[FrameSignal | None, str | None]] = field(default_factory=dict)
+    error: BaseException | None = None
+    done: bool = False
+
+
+Done = Callable[[int, Reduction], None]
+
+
+def reduce_on_cluster(client: Any, sessions: Sequence[str | Path],
+                      bundle: str | Path | None = None,
+                      progress: Callable[[int, int], None] | None = None,
+                      on_done: Done | None = None) -> list[Reduction]:
+    """Reduce every session on ``client``'s workers; ``on_done(i, reduction)`` as each one is
+    finished (e.g. to write its table), ``progress(done, total)`` after each frame over all
+    sessions (the total grows as sessions open). Returns the reductions in session order;
+    raises the first failed session's error once the others are finished."""
+    run = _ClusterRun(client, None if bundle is None else str(Path(bundle).resolve()),
+                      progress, on_done)
+    return run.reduce([Path(s).resolve() for s in sessions])
+
+
+class _ClusterRun:
+    """One call of :func:`reduce_on_cluster`: the futures, what each one is, the tallies."""
+
+    def __init__(self, client: Any, bundle: str | None,
+                 progress: Callable[[int, int], None] | None, on_done: Done | None) -> None:
+        self.client, self.bundle = client, bundle
+        self.progress, self.on_done = progress, on_done
+        self.roles: dict[Any, tuple[str, int, int]] = {}
+        self.pending = _distributed().as_completed()
+        self.sessions: list[_Session] = []
+        self.results: dict[int, Reduction] = {}
+        self.frames_done = self.frames_total = 0
+
+    def _submit(self, role: str, index: int, fn: Callable[..., Any], *args: Any,
+                priority: int, at: int = 0) -> Any:
+        future = self.client.submit(fn, *args, priority=priority, pure=False)
+        self.roles[future] = (role, index, at)
+        self.pending.add(future)
+        return future
+
+    def reduce(self, paths: list[Path]) -> list[Reduction]:
+        for i, path in enumerate(paths):
+            opened = self._submit("open", i, open_session, path, self.bundle,
+                                  priority=OPEN_PRIORITY)
+            self.sessions.append(_Session(path, opened))
+        for future in self.pending:
+            role, i, at = self.roles.pop(future)
+            s = self.sessions[i]
+            if s.error is None and not s.done:
+                try:
+                    getattr(self, f"_{role}")(s, i, future, at)
+                except Exception as exc:
+                    self._fail(s, exc)
+            if role == "frame":
+                self.frames_done += 1
+                if self.progress:
+                    self.progress(self.frames_done, self.frames_total)
+        self._raise_first_error()
+        return [self.results[i] for i in range(len(paths))]
+
+    def _fail(self, s: _Session, exc: BaseException) -> None:
+        s.error = exc if isinstance(exc, GonioError) else DistributedError(
+            f"{s.path}: the reduction failed on a Dask worker ({type(exc).__name__}: "
+            f"{_first_line(exc)})")
+        self.client.cancel([f for f in (s.opened, *s.frames) if f is not None])
+
+    def _open(self, s: _Session, i: int, future: Any, _at: int) -> None:
+        """A session is open: its frames become tasks (and, image-based, a merge tree)."""
+        opened = s.source = future.result()
+        self.frames_total += len(opened.frames)
+        if isinstance(opened, PointSource):
+            s.frames = [self._submit("frame", i, point_signal, future, f, priority=FRAME_PRIORITY,
+                                     at=k) for k, f in enumerate(opened.frames)]
+            if not s.frames:
+                self._finish_point(s, i)
+            return
+        s.frames = [self._submit("frame", i, image_piece, future, [f], priority=FRAME_PRIORITY)
+                    for f in opened.frames]
+        level = s.frames or [self.client.submit(image_piece, future, [], pure=False)]
+        while True:
+            level = [self.client.submit(merge_pieces, *level[k:k + MERGE_FAN_IN],
+                                        priority=MERGE_PRIORITY, pure=False)
+                     for k in range(0, len(level), MERGE_FAN_IN)]
+            if len(level) == 1:
+                break
+        self.roles[level[0]] = ("merged", i, 0)
+        self.pending.add(level[0])
+
+    def _frame(self, s: _Session, i: int, future: Any, at: int) -> None:
+        """A frame is done: a point frame's signal is kept (image frames merge on)."""
+        if not isinstance(s.source, PointSource):
+            return
+        s.signals[at] = future.result()
+        if len(s.signals) == len(s.frames):
+            self._finish_point(s, i)
+
+    def _merged(self, s: _Session, i: int, future: Any, _at: int) -> None:
+        """An image-based session's merged partial: its tables, finished here."""
+        piece: Piece = future.result()
+        reducer = s.source
+        assert isinstance(reducer, ImageReducer)
+        if piece.bad:
+            FrameCheck(reducer.folder.path, list(piece.bad)).raise_if_any()
+        part = piece.partial or reducer.partial([])
+        self._done(s, i, reducer.reduction(part))
+
+    def _finish_point(self, s: _Session, i: int) -> None:
+        """Every signal of a point session is in: its samples' budget and table, here."""
+        source = s.source
+        assert isinstance(source, PointSource)
+        bad = [name for _, (_, name) in sorted(s.signals.items()) if name is not None]
+        FrameCheck(source.folder.path, bad).raise_if_any()
+        known = {f.step: sig for k, f in enumerate(source.frames)
+                 if (sig := s.signals[k][0]) is not None}
+        reducer = PointReducer.open(source.folder.path, self.bundle, signals=known)
+        self._done(s, i, reducer.reduction(reducer.partial(reducer.steps)))
+
+    def _done(self, s: _Session, i: int, reduction: Reduction) -> None:
+        s.done = True
+        s.frames = []
+        if self.on_done:
+            self.on_done(i, reduction)
+        self.results[i] = reduction
+
+    def _raise_first_error(self) -> None:
+        failed = [s for s in self.sessions if s.error is not None]
+        if not failed:
+            return
+        first = failed[0].error
+        if len(failed) > 1:
+            others = ", ".join(str(s.path) for s in failed[1:])
+            raise type(first)(f"{first} (also failed: {others})") from None  # type: ignore[call-arg]
+        raise first  # type: ignore[misc]

@@ -1,0 +1,54 @@
+"""The benchmarks' own baselines: the DMX wire latency computed from DMX512 agrees with the
+simulated widget's timing model, and the image-session plan keeps one light–camera angle."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from simulators.dmx import SimDmxWidget
+
+BENCH = Path(__file__).resolve().parent.parent / "bench"
+
+
+def _bench(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", BENCH / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
+@pytest.mark.parametrize("channels", [1, 24, 156, 512])
+def test_dmx_wire_time_matches_the_simulated_widget(channels: int) -> None:
+    dmx = _bench("dmx")
+    widget = SimDmxWidget(break_units=dmx.BREAK_UNITS, mab_units=dmx.MAB_UNITS,
+                          refresh_rate_hz=dmx.OUTPUT_RATE_HZ)  # never started: no pty
+    assert dmx.wire_frame_s(channels) == pytest.approx(widget.sim_frame_time_s(channels))
+    assert dmx.wire_latency_s(channels) == pytest.approx(
+        widget.sim_frame_period_s(channels) + widget.sim_frame_time_s(channels))
+
+
+def test_dmx_docstring_figures() -> None:
+    dmx = _bench("dmx")
+    assert dmx.wire_frame_s(156) * 1e3 == pytest.approx(7.01, abs=0.005)
+    assert dmx.wire_latency_s(156) * 1e3 == pytest.approx(32.0, abs=0.05)
+
+
+def _direction(theta_deg: float, phi_deg: float) -> np.ndarray:
+    t, p = math.radians(theta_deg), math.radians(phi_deg)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+def test_image_session_poses_keep_one_phase_angle() -> None:
+    session = _bench("image_session")
+    poses = session._phase_poses(session.PHASE_DEG)
+    assert len(poses) >= 2 * session.FRAMES
+    assert {p[2] for p in poses} >= {0.0, 90.0, 180.0}  # the arms go all over
+    for ti, tr, dphi in poses:
+        cos = _direction(ti, 0.0) @ _direction(tr, dphi)
+        assert math.degrees(math.acos(min(cos, 1.0))) == pytest.approx(session.PHASE_DEG, abs=1e-3)

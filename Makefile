@@ -16,7 +16,7 @@ demo: $(STAMP)
 	$(VENV)/bin/gonio demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2
+	$(PY) -m pytest -q -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(PY) bench/run.py

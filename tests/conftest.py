@@ -188,3 +188,19 @@ def unfinish(session: Path, steps: int = 2) -> list[int]:
     finally:
         db.close()
     return [r[0] for r in rows]
+
+
+HOST_TIMED_MODULES = frozenset({
+    "test_dxl_simulator.py", "test_instruction_faults.py", "test_planner_eta.py",
+    "test_bluesky.py", "test_distributed.py",
+})
+"""Test files that measure host timing (pty round trips, reply delays, timeouts) or load the
+host heavily (a Dask cluster of worker processes): under ``pytest -n 2 --dist loadgroup`` (make
+test) they run one after another on one worker, so the cluster never competes with the timed
+tests for the two cores."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in HOST_TIMED_MODULES:
+            item.add_marker(pytest.mark.xdist_group("host-timed"))

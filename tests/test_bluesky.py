@@ -174,12 +174,26 @@ def test_a_pause_mid_move_stops_the_arms_and_the_resumed_run_finishes(
     from simulators.clock import SteppedClock
 
     stepped = SteppedClock.sleep
-    monkeypatch.setattr(SteppedClock, "sleep", lambda self, s: (time.sleep(0.01), stepped(self, s)))
     docs = _collect(RE)
     seen: list[Msg] = []
     polled: list[bool] = []
     session = tmp_path / "s"
+    opened: list[GonioDevices] = []
+
+    def held_sleep(clock: SteppedClock, seconds: float) -> None:
+        """Hold the arms mid-move until the pause lands (however loaded the host)."""
+        time.sleep(0.01)
+        sweep = opened[0].link.sweep if opened else None
+        if len(polled) == 1 and sweep is not None and sweep.moving:
+            deadline = time.monotonic() + 60.0
+            while RE.state == "running" and time.monotonic() < deadline:
+                time.sleep(0.005)
+        stepped(clock, seconds)
+
+    monkeypatch.setattr(SteppedClock, "sleep", held_sleep)  # before the rig takes clock.sleep
     with open_rig_devices(RIG, material=TINY_MATERIAL, seed=SEED) as devices:
+        opened.append(devices)
+
         async def until_moving() -> None:  # once, not again when the RunEngine replays it
             polled.append(True)
             for _ in range(3000 if len(polled) == 1 else 0):

@@ -119,7 +119,10 @@ def test_status_only_faults_still_mean_what_they_meant():
         port.closePort()
 
 
-def test_seeded_instruction_faults_repeat():
+def test_seeded_instruction_faults_repeat(monkeypatch):
+    # A reply the host delays past the SDK's 34 ms would read as one more loss: wait 0.3 s.
+    monkeypatch.setattr(sdk_port, "LATENCY_TIMER", 150)
+
     def run(seed: int) -> tuple[tuple[int, int], ...]:
         with SimServoBus([1], faults=["drop=0.3,corrupt=0.3,dir=instruction"], seed=seed) as sim:
             port = open_port(sim.port)

@@ -57,3 +57,15 @@ def test_stepped_run_time_does_not_depend_on_the_host(tmp_path: Path) -> None:
     times = [api.capture(EXAMPLES / "rig-sim.toml", plan_path, tmp_path / f"run{k}",
                          material="lambert:albedo=0.5").device_seconds for k in range(2)]
     assert times[0] == pytest.approx(times[1], abs=1e-9)
+
+
+def test_a_slow_host_adds_no_rig_time(tmp_path: Path) -> None:
+    """Replies 40 ms late in host time (a loaded host, past the SDK's 34 ms timeout) leave the
+    stepped rig time unchanged: the driver waits for them instead of retrying, so no retry's
+    wire time enters the timeline (a CI run once differed by 19 ms from such a retry)."""
+    plan_path = tmp_path / "two.toml"
+    plan_path.write_text(TINY_PLAN.split("poses")[0] + "poses = [[10, 30, 180], [30, 50, 120]]\n")
+    times = [api.capture(EXAMPLES / "rig-sim.toml", plan_path, tmp_path / f"run{k}",
+                         material="lambert:albedo=0.5", sim_faults=faults).device_seconds
+             for k, faults in enumerate([[], ["delay=40"]])]
+    assert times[1] == pytest.approx(times[0], abs=1e-9)

@@ -44,6 +44,11 @@ if TYPE_CHECKING:
 LATENCY_SYSFS = SYSFS_USB_SERIAL
 """Where the USB-serial adapters' ``latency_timer`` files live (a test may point it elsewhere)."""
 
+SIM_REPLY_GRACE_S = 0.5
+"""Host seconds a simulated bus on a stepped clock may take to reply beyond the SDK's 34 ms:
+its replies come in host scheduling time, and a late one taken for a lost one would add a
+retry to the rig's timeline (a loaded two-core host has delayed them past 34 ms)."""
+
 
 class LatencyWarning(UserWarning):
     """The servo port's USB latency timer is above 1 ms (slow round trips)."""
@@ -253,7 +258,9 @@ def open_servos(
         buses: dict[str, ServoBus] = {}
         for name, bus_cfg in rig.buses.items():
             port = sims[name].port if name in sims else bus_cfg.port
-            bus = stack.enter_context(ServoBus(port, bus_cfg.baud, name=name))
+            grace = SIM_REPLY_GRACE_S if name in sims and not clock.follows_host else 0.0
+            bus = stack.enter_context(ServoBus(port, bus_cfg.baud, name=name,
+                                               reply_grace_s=grace))
             buses[name] = bus
             for a in rig.axes.values():
                 if a.bus == name:

@@ -177,6 +177,11 @@ class ServoBus:
         ``{servo_id: axis name}`` for messages (also settable with :meth:`label`).
     lock_port:
         Take an exclusive ``flock`` on the port, so two gonio processes cannot share a bus.
+    reply_grace_s:
+        Host seconds a reply may take beyond the SDK's packet timeout (≈ 34 ms). 0 for real
+        servos. An in-process simulator on a discrete-event clock answers in host scheduling
+        time, which on a loaded host can pass 34 ms: a late reply taken for a lost one would
+        add a retry (and its wire time) to the rig's timeline, so its rig allows more.
 
     Examples
     --------
@@ -197,9 +202,13 @@ class ServoBus:
         name: str | None = None,
         axis_names: Mapping[int, str] | None = None,
         lock_port: bool = True,
+        reply_grace_s: float = 0.0,
     ) -> None:
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
+        if reply_grace_s < 0:
+            raise ValueError(f"reply_grace_s must be >= 0, got {reply_grace_s}")
+        self.reply_grace_ms = 1000.0 * reply_grace_s
         self.port_name = port
         self.baud = baud
         self.retries = retries
@@ -358,6 +367,7 @@ class ServoBus:
             if result != COMM_SUCCESS:
                 return result, b"", 0
             port.setPacketTimeout(reply_size + 11)
+            port.packet_timeout += self.reply_grace_ms
             for _ in range(8):
                 self._wait_for_reply(port)
                 reply, result = self._ph.rxPacket(port, False)
@@ -538,6 +548,7 @@ class ServoBus:
             result = self._ph.syncReadTx(port, address, size, ids, len(ids), False)
             if result != COMM_SUCCESS:
                 return result
+            port.packet_timeout += self.reply_grace_ms  # syncReadTx set the SDK's timeout
             pending = set(ids)
             corrupt = 0
             # Each call returns one packet, a corrupt one, or the timeout; bound the loop.

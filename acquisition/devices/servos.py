@@ -50,6 +50,16 @@ its replies come in host scheduling time, and a late one taken for a lost one wo
 retry to the rig's timeline (a loaded two-core host has delayed them past 34 ms)."""
 
 
+def sim_reply_grace_s(sim: SimServoBus | None, clock: SimClock | None) -> float:
+    """The driver's extra wait for a reply (:data:`SIM_REPLY_GRACE_S`) on a simulated bus
+    whose clock is stepped and which is not told to drop packets (where a missing reply can
+    only be a late one); 0 otherwise (a bus that drops packets on purpose would spend the
+    grace on each loss, and its tables do not depend on the retries)."""
+    if sim is None or clock is None or clock.follows_host:
+        return 0.0
+    return 0.0 if any(f.kind == "drop" for f in sim.faults) else SIM_REPLY_GRACE_S
+
+
 class LatencyWarning(UserWarning):
     """The servo port's USB latency timer is above 1 ms (slow round trips)."""
 
@@ -258,7 +268,7 @@ def open_servos(
         buses: dict[str, ServoBus] = {}
         for name, bus_cfg in rig.buses.items():
             port = sims[name].port if name in sims else bus_cfg.port
-            grace = SIM_REPLY_GRACE_S if name in sims and not clock.follows_host else 0.0
+            grace = sim_reply_grace_s(sims.get(name), clock)
             bus = stack.enter_context(ServoBus(port, bus_cfg.baud, name=name,
                                                reply_grace_s=grace))
             buses[name] = bus

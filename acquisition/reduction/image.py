@@ -267,28 +267,50 @@ class ImageReducer:
 
     def _read_references(self, refs: list[StepRecord]) -> None:
         """C (3,) and its variance at every readable white-reference frame."""
-        rho = np.asarray(self.rig.white_reference.reflectance, dtype=np.float64)
-        steps, cals, rels = [], [], []
-        for rec in refs:
-            image = self.check.load(rec.frame, lambda rec=rec: _linear(self.folder, self.rig, rec,
-                                                                       self.cal))
-            if image is None:
-                continue
-            geo = _geometry(self.rig, rec, image.valid.shape, "flat", self.model)
-            cal, n = white_calibration(image, geo, self.rig.camera.roi, rho)
-            if n == 0:
-                raise SessionError(
-                    f"{self.folder.path}: white-reference frame {rec.frame} has no valid pixel on "
-                    "the plate in the ROI: move [camera] roi onto the plate or shorten the exposure")
-            steps.append(rec.step)
-            cals.append(cal)
-            rels.append(white_relative_uncertainty(image, geo, self.rig.camera.roi))
-        if not cals:
+        got = [(rec.step, *ref) for rec in refs if (ref := self.read_reference(rec)) is not None]
+        if not got:
             self.check.raise_if_any()
             raise SessionError(f"{self.folder.path} has no white-reference frame: resume the "
                                "capture to take it")
-        self.ref_steps, self.ref_cals = np.array(steps, float), np.array(cals)
-        self.ref_vars = (np.array(rels) * self.ref_cals) ** 2
+        self.set_references(got)
+
+    def read_reference(self, rec: StepRecord) -> tuple[np.ndarray, np.ndarray] | None:
+        """C (3,) and its variance (3,) from one white-reference frame, or None when its RAW
+        cannot be decoded (noted in :attr:`check`); SessionError when no plate pixel is
+        valid in the ROI."""
+        image = self.check.load(rec.frame, lambda: _linear(self.folder, self.rig, rec, self.cal))
+        if image is None:
+            return None
+        geo = _geometry(self.rig, rec, image.valid.shape, "flat", self.model)
+        rho = np.asarray(self.rig.white_reference.reflectance, dtype=np.float64)
+        cal, n = white_calibration(image, geo, self.rig.camera.roi, rho)
+        if n == 0:
+            raise SessionError(
+                f"{self.folder.path}: white-reference frame {rec.frame} has no valid pixel on "
+                "the plate in the ROI: move [camera] roi onto the plate or shorten the exposure")
+        rel = white_relative_uncertainty(image, geo, self.rig.camera.roi)
+        return cal, (rel * cal) ** 2
+
+    def set_references(self, refs: Iterable[tuple[int, np.ndarray, np.ndarray]]) -> None:
+        """Use these white references: (journal step, C (3,), its variance (3,)) each."""
+        got = sorted(refs, key=lambda r: r[0])
+        self.ref_steps = np.array([r[0] for r in got], float)
+        self.ref_cals = np.array([r[1] for r in got]).reshape(-1, 3)
+        self.ref_vars = np.array([r[2] for r in got]).reshape(-1, 3)
+
+    def reference_at(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """C (3,) at journal step ``step``, linear in step between the white references on
+        either side (the nearest beyond the first or last), and its relative standard
+        uncertainty (3,). Only those two references enter (a reduction that streams while
+        later ones are still to come gets the same bits)."""
+        xs = self.ref_steps
+        hi = int(np.searchsorted(xs, step, side="right"))
+        lo = max(hi - 1, 0)
+        hi = min(hi, xs.size - 1)
+        pair = slice(lo, hi + 1)
+        cal = np.array([np.interp(step, xs[pair], self.ref_cals[pair, c]) for c in range(3)])
+        w = np.array([np.interp(step, xs[pair], e) for e in np.eye(hi + 1 - lo)])
+        return cal, np.sqrt(w**2 @ self.ref_vars[pair]) / cal
 
     @property
     def n_references(self) -> int:
@@ -314,7 +336,6 @@ class ImageReducer:
     def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
         """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
         frame that cannot be decoded is skipped and noted (``check.raise_if_any``)."""
-        eye = np.eye(self.ref_steps.size)
         for recs in frames:
             rec = recs[0]
             plain = len(recs) == 1 and hdr_group(rec.note) is None
@@ -324,10 +345,8 @@ class ImageReducer:
             if image is None:
                 continue
             geo = _geometry(self.rig, rec, image.valid.shape, model=self.model)
-            cal = np.array([np.interp(rec.step, self.ref_steps, self.ref_cals[:, c]) for c in range(3)])
-            w = np.array([np.interp(rec.step, self.ref_steps, eye[k]) for k in range(eye.shape[0])])
-            fs = frame_samples(image, geo, cal, rec.step, self.min_cos,
-                               np.sqrt(w**2 @ self.ref_vars) / cal)
+            cal, cal_rel = self.reference_at(rec.step)
+            fs = frame_samples(image, geo, cal, rec.step, self.min_cos, cal_rel)
             yield replace(fs, joints=rec.joints_read or rec.joints_cmd)
 
     def new_tables(self, provenance: dict[str, object] | None = None

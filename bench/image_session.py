@@ -61,8 +61,9 @@ def _small_rig(folder: Path) -> Path:
     return path
 
 
-def _plan(folder: Path, rig: Path) -> Path:
-    """A list plan of exactly FRAMES poses the planner accepts (light arc, three camera arcs)."""
+def _plan(folder: Path, rig: Path, frames: int = FRAMES) -> Path:
+    """A list plan of exactly ``frames`` poses the planner accepts (light arc, three camera
+    arcs)."""
     from acquisition import api
 
     cands = [[ti, tr, dp] for tr in (30, 60) for dp in (90, 180) for ti in range(3, 79, 3)]
@@ -76,9 +77,9 @@ def _plan(folder: Path, rig: Path) -> Path:
     write(cands)
     accepted = [[s.pose.theta_i, s.pose.theta_r, s.pose.delta_phi]
                 for s in api.plan_sweep(path, rig).steps]
-    if len(accepted) < FRAMES:
-        raise RuntimeError(f"only {len(accepted)} poses accepted, need {FRAMES}")
-    write(accepted[:FRAMES])
+    if len(accepted) < frames:
+        raise RuntimeError(f"only {len(accepted)} poses accepted, need {frames}")
+    write(accepted[:frames])
     return path
 
 

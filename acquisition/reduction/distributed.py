@@ -69,6 +69,15 @@ LOCAL_CLUSTER: dict[str, Any] = {
 }
 """``distributed.LocalCluster`` options of ``--workers N``: worker processes of one thread,
 no dashboard, quiet logs."""
+LOCAL_CONFIG: dict[str, Any] = {
+    # Dask's nanny sets MALLOC_TRIM_THRESHOLD_=65536 in its workers, which turns off glibc's
+    # adaptive mmap threshold: every frame-sized array is then mapped afresh and page-faulted
+    # (measured on 10 frames of 6 MP: sys time ≈ 0.75 × user time with it, ≈ 0.2 × without)
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    # the statistical profiler feeds the dashboard, which is off (~1.3 % of a core per worker)
+    "distributed.worker.profile.enabled": False,
+}
+"""Dask configuration of the local cluster's workers."""
 
 
 class DistributedError(GonioError, RuntimeError):
@@ -92,12 +101,15 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     each, no dashboard) or on the cluster at ``scheduler`` (``tcp://HOST:PORT``), its workers'
     versions checked; the local cluster is shut down on exit."""
     if (workers is None) == (scheduler is None):
-        raise DistributedError("give a number of workers or a scheduler address, not both")
+        raise DistributedError("give either a number of workers or a scheduler address")
     dist = _distributed()
     if scheduler is None:
         if workers < 1:  # type: ignore[operator]
             raise DistributedError(f"--workers must be ≥ 1, got {workers}")
-        with dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER) as cluster, \
+        import dask
+
+        with dask.config.set(LOCAL_CONFIG), \
+                dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER) as cluster, \
                 dist.Client(cluster) as client:
             check_versions(client)
             yield client

@@ -4,7 +4,9 @@ image-based session: 100 frames of 6 MP (the simulated sphere rig, ``examples/ri
 temporary folder.
 
 Three ways to reduce the same session, each twice, in the order serial, pool, Dask, Dask,
-pool, serial (a shared machine's load drifts: a linear drift cancels; compare within a run):
+pool, serial (a shared machine's load drifts: a linear drift cancels; compare within a run),
+each in a fresh process that has reduced one frame before the clock starts (numba's kernels
+loaded; a process that ran a Dask client has threads, after which a forked pool deadlocked):
 
 * serial: :class:`ImageReducer` opened here, every frame into one partial, finished here;
 * Pool: opened here, a 2-process ``multiprocessing.Pool`` (fork) reducing the odd and the even
@@ -14,8 +16,8 @@ pool, serial (a shared machine's load drifts: a linear drift cancels; compare wi
   ``LocalCluster`` configured as ``gonio reduce --workers 2`` configures it (one thread per
   worker) — the session opened on a worker, one task per frame, partials merged on the
   workers, one merged partial finished here. The cluster is started, and each worker has
-  reduced one frame in a task (numba's cache loaded, as the forked pool inherits it from this
-  process), before the clock starts.
+  reduced one frame in a task (numba's cache loaded, as the forked pool inherits it), before
+  the clock starts.
 
 The three tables must be equal bit for bit (else the benchmark fails). (The file is not
 called ``distributed.py``: run from ``bench/``, it would shadow the ``distributed`` package.)
@@ -36,16 +38,13 @@ Reported:
 from __future__ import annotations
 
 import importlib.util
-import multiprocessing
+import json
 import os
-import resource
+import subprocess
+import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
-from typing import Any, NamedTuple
-
-import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -53,10 +52,8 @@ RIG = ROOT / "examples" / "rig-sphere-sim.toml"
 FRAMES = 100
 WIDTH, HEIGHT = 3000, 2000
 MATERIAL = "ggx:albedo=0.2,alpha=0.2,f0=0.2"
-FORK_WARNING = ("ignore", "rawpy is being used in a process created by multiprocessing",
-                RuntimeWarning)
-"""rawpy warns in forked children (its OpenMP may deadlock after a fork: it did not here, and
-fork lets the pool inherit this process's warm numba kernels, as the Dask workers are warmed)."""
+ORDER = ("serial", "pool", "dask", "dask", "pool", "serial")
+"""Each way twice, symmetric in time: a linear drift of the machine's load cancels."""
 
 
 def _rig(folder: Path) -> Path:
@@ -84,88 +81,90 @@ def _plan(folder: Path, rig: Path) -> Path:
     return module._plan(folder, rig, FRAMES)
 
 
-class _Run(NamedTuple):
-    """One reduction: wall time, the CPU time of the processes doing the work, this process's
-    CPU time besides (Dask: the client and the LocalCluster's scheduler), the reduction."""
+_CHILD = r"""
+import hashlib, json, multiprocessing, resource, sys, time, warnings
+from acquisition.reduction.image import ImageReducer
+from acquisition.tables.partial import merge_all
 
-    wall_s: float
-    cpu_s: float
-    client_cpu_s: float
-    reduction: Any
+FORK_WARNING = ("ignore", "rawpy is being used in a process created by multiprocessing",
+                RuntimeWarning)
 
 
-def _serial(session: Path) -> _Run:
-    """One process: opened, every frame into one partial, finished."""
-    from acquisition.reduction.image import ImageReducer
+def digest(red):
+    h = hashlib.sha256()
+    for a in (red.table.count, red.table.mean, red.table.std_error, red.merl.count,
+              red.merl.mean, red.merl.variance):
+        h.update(a.tobytes())
+    return h.hexdigest()
 
+
+def children_cpu():
+    u = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return u.ru_utime + u.ru_stime
+
+
+def serial(session):
     t, cpu = time.perf_counter(), time.process_time()
     reducer = ImageReducer.open(session)
     red = reducer.reduction(reducer.partial(reducer.frames))
-    return _Run(time.perf_counter() - t, time.process_time() - cpu, 0.0, red)
+    return time.perf_counter() - t, time.process_time() - cpu, 0.0, red
 
 
-def _children_cpu_s() -> float:
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _pool(session: Path) -> _Run:
-    """A 2-process pool (fork), one partial per process, merged and finished here."""
-    from acquisition.reduction.image import ImageReducer
-    from acquisition.tables.partial import merge_all
-
-    t, cpu, children = time.perf_counter(), time.process_time(), _children_cpu_s()
+def pool(session):
+    t, cpu, kids = time.perf_counter(), time.process_time(), children_cpu()
     reducer = ImageReducer.open(session)
-    with multiprocessing.get_context("fork").Pool(2, warnings.filterwarnings, FORK_WARNING) as pool:
-        parts = pool.map(reducer.partial, [reducer.frames[0::2], reducer.frames[1::2]])
+    with multiprocessing.get_context("fork").Pool(2, warnings.filterwarnings, FORK_WARNING) as p:
+        parts = p.map(reducer.partial, [reducer.frames[0::2], reducer.frames[1::2]])
     red = reducer.reduction(merge_all(parts))
-    return _Run(time.perf_counter() - t,
-                time.process_time() - cpu + _children_cpu_s() - children, 0.0, red)
+    return (time.perf_counter() - t, time.process_time() - cpu + children_cpu() - kids, 0.0,
+            red)
 
 
-def _workers_cpu_s(client: Any) -> float:
+def workers_cpu(client):
     return sum(u.ru_utime + u.ru_stime
                for u in client.run(resource.getrusage, resource.RUSAGE_SELF).values())
 
 
-def _dask(session: Path, runs: int) -> list[_Run]:
-    """``runs`` reductions on one 2-worker LocalCluster, each worker warmed by a task (numba's
-    kernels and the task thread's memory) before the first."""
+def on_cluster(session):
     import dask
     from distributed import Client, LocalCluster, wait
-
     from acquisition.reduction.distributed import (
-        LOCAL_CLUSTER,
-        LOCAL_CONFIG,
-        image_piece,
-        reduce_on_cluster,
-    )
-    from acquisition.reduction.image import ImageReducer
+        LOCAL_CLUSTER, LOCAL_CONFIG, image_piece, reduce_on_cluster)
 
-    out = []
-    with dask.config.set(LOCAL_CONFIG), LocalCluster(n_workers=2, **LOCAL_CLUSTER) as cluster, \
-            Client(cluster) as client:
+    with dask.config.set(LOCAL_CONFIG), LocalCluster(n_workers=2, **LOCAL_CLUSTER) as c, \
+            Client(c) as client:
         warm = ImageReducer.open(session)
         wait([client.submit(image_piece, warm, warm.frames[:1], workers=[w], pure=False)
               for w in client.scheduler_info()["workers"]])
-        for _ in range(runs):
-            before = _workers_cpu_s(client)
-            t, cpu = time.perf_counter(), time.process_time()
-            (red,) = reduce_on_cluster(client, [session])
-            wall, client_cpu = time.perf_counter() - t, time.process_time() - cpu
-            out.append(_Run(wall, _workers_cpu_s(client) - before, client_cpu, red))
-    return out
+        before = workers_cpu(client)
+        t, cpu = time.perf_counter(), time.process_time()
+        (red,) = reduce_on_cluster(client, [session])
+        wall, client_cpu = time.perf_counter() - t, time.process_time() - cpu
+        return wall, workers_cpu(client) - before, client_cpu, red
 
 
-def _sum(runs: list[_Run], what: str) -> float:
-    return sum(getattr(r, what) for r in runs)
+if __name__ == "__main__":
+    how, session = sys.argv[1], sys.argv[2]
+    warm = ImageReducer.open(session)
+    warm.partial(warm.frames[:1])  # numba's kernels loaded here (a forked pool inherits them)
+    wall, cpu, client_cpu, red = {"serial": serial, "pool": pool, "dask": on_cluster}[how](session)
+    print(json.dumps({"wall_s": wall, "cpu_s": cpu, "client_cpu_s": client_cpu,
+                      "frames": red.frames, "digest": digest(red)}))
+"""
+"""One timed reduction in a fresh process (``python -c _CHILD serial|pool|dask SESSION``):
+prints its wall time, the CPU time of the processes doing the work, this process's CPU time
+besides (Dask: the client and the LocalCluster's scheduler), frames and the tables' digest."""
 
 
-def _same(a: object, b: object) -> bool:
-    """The reductions' isotropic and MERL tables are equal bit for bit."""
-    arrays = [lambda r: r.table.count, lambda r: r.table.mean, lambda r: r.table.std_error,
-              lambda r: r.merl.count, lambda r: r.merl.mean, lambda r: r.merl.variance]
-    return all(np.asarray(f(a)).tobytes() == np.asarray(f(b)).tobytes() for f in arrays)
+def _run(how: str, session: Path) -> dict[str, float | str]:
+    out = subprocess.run([sys.executable, "-c", _CHILD, how, str(session)], capture_output=True,
+                         text=True, check=True, cwd=ROOT,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _sum(runs: list[dict[str, float | str]], what: str) -> float:
+    return sum(float(r[what]) for r in runs)
 
 
 def bench_dask_reduction() -> dict[str, dict[str, float | str]]:
@@ -179,27 +178,25 @@ def bench_dask_reduction() -> dict[str, dict[str, float | str]]:
         t = time.perf_counter()
         api.capture(rig, _plan(folder, rig), session, material=MATERIAL, seed=1)
         capture_s = time.perf_counter() - t
-        serial, pool = [_serial(session)], [_pool(session)]
-        dasked = _dask(session, 2)
-        pool.append(_pool(session))
-        serial.append(_serial(session))
-    first = serial[0].reduction
-    if not all(_same(first, r.reduction) for r in serial + pool + dasked):
+        runs: dict[str, list[dict[str, float | str]]] = {"serial": [], "pool": [], "dask": []}
+        for how in ORDER:
+            runs[how].append(_run(how, session))
+    every = [r for rs in runs.values() for r in rs]
+    if len({r["digest"] for r in every}) != 1:
         raise RuntimeError("the serial, pool and Dask tables differ")
-    if first.frames != FRAMES:
-        raise RuntimeError(f"reduced {first.frames} frames, expected {FRAMES}")
-    serial_s, pool_s, dask_s = (_sum(r, "wall_s") for r in (serial, pool, dasked))
-    serial_cpu = _sum(serial, "cpu_s")
+    if {r["frames"] for r in every} != {FRAMES}:
+        raise RuntimeError(f"reduced {sorted({r['frames'] for r in every})} frames, expected {FRAMES}")
+    serial_s, pool_s, dask_s = (_sum(runs[k], "wall_s") for k in ("serial", "pool", "dask"))
+    serial_cpu, dask_cpu = _sum(runs["serial"], "cpu_s"), _sum(runs["dask"], "cpu_s")
     return {
         "dask_vs_pool_efficiency": {"value": pool_s / dask_s, "unit": "ratio"},
         "dask_speedup_2_workers": {"value": serial_s / dask_s, "unit": "ratio"},
         "pool_speedup_2_processes": {"value": serial_s / pool_s, "unit": "ratio"},
-        "dask_cpu_overhead": {"value": _sum(dasked, "cpu_s") / serial_cpu, "unit": "ratio"},
+        "dask_cpu_overhead": {"value": dask_cpu / serial_cpu, "unit": "ratio"},
         "dask_cpu_overhead_with_client": {
-            "value": (_sum(dasked, "cpu_s") + _sum(dasked, "client_cpu_s")) / serial_cpu,
-            "unit": "ratio"},
-        "pool_cpu_overhead": {"value": _sum(pool, "cpu_s") / serial_cpu, "unit": "ratio"},
-        "dask_bench_serial_s": {"value": serial_s / len(serial), "unit": "s"},
+            "value": (dask_cpu + _sum(runs["dask"], "client_cpu_s")) / serial_cpu, "unit": "ratio"},
+        "pool_cpu_overhead": {"value": _sum(runs["pool"], "cpu_s") / serial_cpu, "unit": "ratio"},
+        "dask_bench_serial_s": {"value": serial_s / len(runs["serial"]), "unit": "s"},
         "dask_bench_cores": {"value": os.cpu_count() or 0, "unit": "cores"},
         "dask_bench_load_avg_1min": {"value": load, "unit": "processes"},
         "dask_bench_capture_s": {"value": capture_s, "unit": "s"},

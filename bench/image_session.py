@@ -111,16 +111,21 @@ def _phase_poses(phase_deg: float) -> list[list[float]]:
     return poses
 
 
-def _accepted_poses(folder: Path, rig: Path) -> list[list[float]]:
-    """FRAMES poses at PHASE_DEG the planner accepts, spread over its route."""
+def _accepted_poses(folder: Path, rig: Path, frames: int = FRAMES) -> list[list[float]]:
+    """``frames`` poses at PHASE_DEG the planner accepts, spread over its route."""
     from acquisition import api
 
     plan = _write_plan(folder / "candidates.toml", _phase_poses(PHASE_DEG))
     accepted = [[s.pose.theta_i, s.pose.theta_r, s.pose.delta_phi]
                 for s in api.plan_sweep(plan, rig).steps]
-    if len(accepted) < FRAMES:
-        raise RuntimeError(f"only {len(accepted)} poses accepted, need {FRAMES}")
-    return accepted[:: len(accepted) // FRAMES][:FRAMES]
+    if len(accepted) < frames:
+        raise RuntimeError(f"only {len(accepted)} poses accepted, need {frames}")
+    return accepted[:: len(accepted) // frames][:frames]
+
+
+def _plan(folder: Path, rig: Path, frames: int = FRAMES) -> Path:
+    """A list plan of ``frames`` accepted poses (``folder/plan.toml``)."""
+    return _write_plan(folder / "plan.toml", _accepted_poses(folder, rig, frames))
 
 
 def _write_plan(path: Path, poses: list[list[float]]) -> Path:

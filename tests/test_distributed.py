@@ -140,29 +140,43 @@ def test_a_bad_frame_on_a_worker_is_gonios_one_line(sessions, cluster, tmp_path,
 
 def test_a_failure_on_a_worker_is_one_line_naming_the_session(sessions, cluster, tmp_path,
                                                               capsys):
-    def break_binning() -> None:
+    """Binning (image) and reading a signal (point) crash on the workers: the first session's
+    line, the second named, the rest of its frames cancelled, no table."""
+    def break_workers() -> None:  # runs on the workers (pickled by value: a local function)
+        import acquisition.reduction.distributed as dist
         from acquisition.reduction.image import ImageReducer
 
-        def partial(self, frames):  # noqa: ANN001, ANN202
+        def crash(*_args):  # noqa: ANN002, ANN202
             raise RuntimeError("binning kernel crashed")
 
-        ImageReducer.real_partial = ImageReducer.partial
-        ImageReducer.partial = partial
+        ImageReducer.real_partial, dist.real_read_signal = ImageReducer.partial, dist.read_signal
+        ImageReducer.partial = dist.read_signal = crash
 
     def restore() -> None:
+        import acquisition.reduction.distributed as dist
         from acquisition.reduction.image import ImageReducer
 
-        ImageReducer.partial = ImageReducer.real_partial
+        ImageReducer.partial, dist.read_signal = ImageReducer.real_partial, dist.real_read_signal
 
-    cluster.run(break_binning)
+    cluster.run(break_workers)
     try:
-        assert main(["reduce", str(sessions["sphere"]), "-o", str(tmp_path / "t.h5"),
-                     "--scheduler", cluster.scheduler.address]) == 2
+        assert main(["reduce", str(sessions["sphere"]), str(sessions["quick"]), "-o",
+                     str(tmp_path / "lib"), "--scheduler", cluster.scheduler.address]) == 2
     finally:
         cluster.run(restore)
     line = _one_line(capsys.readouterr().err)
-    assert str(sessions["sphere"].resolve()) in line
-    assert "failed on a Dask worker (RuntimeError: binning kernel crashed)" in line
+    assert line.startswith(f"gonio: error: {sessions['sphere'].resolve()}: the reduction failed "
+                           "on a Dask worker (RuntimeError: binning kernel crashed)")
+    assert line.endswith(f"(also failed: {sessions['quick'].resolve()})")
+    assert list((tmp_path / "lib").iterdir()) == []
+
+
+def test_an_unreachable_scheduler_is_one_line(sessions, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("acquisition.reduction.distributed.CONNECT_TIMEOUT_S", 0.5)
+    assert main(["reduce", str(sessions["sphere"]), "-o", str(tmp_path / "t.h5"),
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in line
     assert not (tmp_path / "t.h5").exists()
 
 

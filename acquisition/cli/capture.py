@@ -51,9 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", metavar="BUNDLE",
                    help="calibration bundle to apply (default: the session's own copy)")
     p.add_argument("--checkpoint-every", type=_frames, default=api.CHECKPOINT_EVERY, metavar="N",
-                   help="image-based sessions: save the partial tables beside the table every N "
-                        "frames, to resume after an interruption (0: only at the end; "
-                        f"default {api.CHECKPOINT_EVERY})")
+                   help="image-based sessions reduced here (not on a cluster): save the "
+                        "partial tables beside the table every N frames, to resume after an "
+                        f"interruption (0: only at the end; default {api.CHECKPOINT_EVERY})")
     add_json(p)
     p.set_defaults(func=run_reduce)
 

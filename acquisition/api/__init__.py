@@ -24,6 +24,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "ScriptedSession", "scripted_session", "reduce",
     ),
     "acquisition.api.library": ("reduce_many", "table_paths"),
+    "acquisition.api.streaming": ("follow_session", "FollowResult", "StreamingError"),
     "acquisition.reduction.distributed": ("DistributedError",),
     "acquisition.api.demo": ("run_demo", "DemoResult"),
     "acquisition.api.analysis": ("open_table", "fit", "median_relative_uncertainty", "check",
@@ -127,6 +128,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
         scripted_session,
         step_durations,
     )
+    from acquisition.api.streaming import FollowResult, StreamingError, follow_session
     from acquisition.calibrate.geometry import GeometryRun, calibrate_geometry
     from acquisition.calibrate.radiometric import KINDS, CalibrationRun, calibrate
     from acquisition.devices.console import (

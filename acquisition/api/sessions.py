@@ -33,6 +33,7 @@ from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
+from acquisition.session.runlock import capture_lock
 from acquisition.session.status import LINK_STATS_META
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
@@ -58,6 +59,9 @@ class CaptureResult:
     counts: dict[str, int]
     device_seconds: float | None
     """Time the capture took on the devices' clock (the simulated clock for simulated rigs)."""
+    streamed: dict[str, object] | None = None
+    """With ``reduce=True``, the streaming reduction's report: ``{"table": path, "frames": n,
+    "pending": n}``, or ``{"error": one line}`` (see :mod:`acquisition.api.streaming`)."""
 
 
 def plan_sweep(plan_path: str | Path, rig_path: str | Path) -> Sweep:
@@ -147,27 +151,39 @@ def run_session(
     on_open: OnOpen | None = None,
     observers: Sequence[Observer] = (),
     prompt: OperatorPrompt | None = None,
+    reduce: bool = False,
 ) -> CaptureResult:
     """Run (or continue) every step of a pre-planned session that is not done yet.
 
     ``prompt`` asks the operator to swap the sample and the white reference on a real rig.
+    ``reduce``: reduce the frames as they land, in a worker process
+    (:class:`~acquisition.api.streaming.StreamingWorker`), into the session's table.
     """
     rig = folder.rig()
     material = parse_material(folder.info.material) if folder.info.material else None
     if rig.simulated and material is None:
         raise SessionError(f"{folder.path}: a simulated rig needs a material (--material)")
     planner = folder.planner()
-    with open_devices(rig, planner, material=material, seed=folder.info.seed,
-                      sim_faults=sim_faults, prompt=prompt) as devices:
-        if on_open:
-            on_open(folder, devices.device_time_s())
-        t0 = devices.device_time_s()
-        engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
-                               planner)
-        with keeping_run_health(folder, devices):
-            counts = engine.run()
-        t1 = devices.device_time_s()
-    return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0)
+    worker = None
+    try:
+        with capture_lock(folder.path), open_devices(
+                rig, planner, material=material, seed=folder.info.seed, sim_faults=sim_faults,
+                prompt=prompt) as devices:
+            if reduce:
+                from acquisition.api.streaming import StreamingWorker
+
+                worker = StreamingWorker(folder)
+            if on_open:
+                on_open(folder, devices.device_time_s())
+            t0 = devices.device_time_s()
+            engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
+                                   planner)
+            with keeping_run_health(folder, devices):
+                counts = engine.run()
+            t1 = devices.device_time_s()
+    finally:  # the lock is released: the worker sees the capture end and finishes
+        streamed = None if worker is None else worker.result()
+    return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0, streamed)
 
 
 @contextmanager
@@ -206,12 +222,15 @@ def capture(
     observers: Sequence[Observer] = (),
     on_open: OnOpen | None = None,
     prompt: OperatorPrompt | None = None,
+    reduce: bool = False,
 ) -> CaptureResult:
     """Create a session folder at ``out`` and capture the plan on the rig.
 
     ``calibration`` (a file or folder) is copied into the session for provenance; a bundle's
     geometric calibration (``gonio calibrate geometry``) is applied by the planner: the joint
     targets realise each pose on the real rig.
+    ``reduce=True`` reduces the frames as they land, in a worker process beside the capture,
+    into ``out/brdf.h5`` (:mod:`acquisition.api.streaming`; the result's ``streamed``).
     ``on_open(folder, device_time_s)`` is called once the devices are open (e.g. to start a
     progress ETA from :func:`step_durations`). ``prompt(target)`` asks the operator to put
     the ``"sample"`` or ``"white"`` reference on a real rig (refused without one).
@@ -223,7 +242,7 @@ def capture(
     folder, _ = create_session(out, rig, plan, material=material, seed=seed,
                                calibration=calibration, planner=planner)
     return run_session(folder, sim_faults=sim_faults, progress=progress, observers=observers,
-                       on_open=on_open, prompt=prompt)
+                       on_open=on_open, prompt=prompt, reduce=reduce)
 
 
 def _check_before_creating(rig: RigConfig, plan: PlanSpec, command: str,
@@ -254,10 +273,12 @@ def resume(
     observers: Sequence[Observer] = (),
     on_open: OnOpen | None = None,
     prompt: OperatorPrompt | None = None,
+    reduce: bool = False,
 ) -> CaptureResult:
     """Continue an interrupted session where it stopped (gonio or light-stage).
 
-    ``on_open`` and ``prompt`` as for :func:`capture`.
+    ``on_open``, ``prompt`` and ``reduce`` as for :func:`capture` (a light stage's field is
+    made at its end; ``reduce`` does not apply).
     """
     from acquisition.lightstage.reduce import is_lightstage_session
 
@@ -273,7 +294,7 @@ def resume(
     if sim_faults:
         check_sim_faults(folder.rig(), sim_faults)
     return run_session(folder, sim_faults=sim_faults, progress=progress,
-                       observers=observers, on_open=on_open, prompt=prompt)
+                       observers=observers, on_open=on_open, prompt=prompt, reduce=reduce)
 
 
 class ScriptedSession:
@@ -365,9 +386,9 @@ def scripted_session(
     spec = folder.info.material
     mat = parse_material(spec) if spec else None
     planner = folder.planner()
-    with open_devices(rig, planner, material=mat, seed=folder.info.seed,
-                      sim_faults=sim_faults, prompt=prompt) as devices, \
-            keeping_run_health(folder, devices):
+    with capture_lock(folder.path), open_devices(
+            rig, planner, material=mat, seed=folder.info.seed, sim_faults=sim_faults,
+            prompt=prompt) as devices, keeping_run_health(folder, devices):
         yield ScriptedSession(folder, devices, planner)
 
 
@@ -414,9 +435,12 @@ def reduce(
     return result
 
 
-def write_table(result: Reduction, out: str | Path, session: str | Path) -> None:
+def write_table(result: Reduction, out: str | Path, session: str | Path, *,
+                keep_checkpoint: bool = False) -> None:
     """Save a reduction's table (and an image-based session's MERL table in it) at ``out``
-    atomically, then delete the checkpoint beside it: the table supersedes it."""
+    atomically, then delete the checkpoint beside it: the table supersedes it (unless
+    ``keep_checkpoint``: the table of a capture that will be resumed)."""
     result.table.save_h5(out, inputs=(session,), merl=getattr(result, "merl", None))
-    with suppress(FileNotFoundError):
-        checkpoint_path(out).unlink()
+    if not keep_checkpoint:
+        with suppress(FileNotFoundError):
+            checkpoint_path(out).unlink()

@@ -27,12 +27,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--calibration", metavar="PATH",
                    help="calibration file or folder used; copied into the session")
     add_sim_fault(p)
+    _add_no_reduce(p)
     add_json(p)
     p.set_defaults(func=run_capture)
 
     p = sub.add_parser("resume", help=COMMANDS["resume"])
     p.add_argument("session", help="session folder")
     add_sim_fault(p)
+    _add_no_reduce(p)
     add_json(p)
     p.set_defaults(func=run_resume)
 
@@ -50,12 +52,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                             "the same paths")
     p.add_argument("--calibration", metavar="BUNDLE",
                    help="calibration bundle to apply (default: the session's own copy)")
+    p.add_argument("--follow", action="store_true",
+                   help="reduce the frames of a capture running in another process as they "
+                        "land; write the table when it ends (one session, here)")
     p.add_argument("--checkpoint-every", type=_frames, default=api.CHECKPOINT_EVERY, metavar="N",
                    help="image-based sessions reduced here (not on a cluster): save the "
                         "partial tables beside the table every N frames, to resume after an "
                         f"interruption (0: only at the end; default {api.CHECKPOINT_EVERY})")
     add_json(p)
     p.set_defaults(func=run_reduce)
+
+
+def _add_no_reduce(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-reduce", dest="reduce", action="store_false",
+                   help="do not reduce the frames as they land (by default a worker process "
+                        "beside the capture does, into SESSION/brdf.h5)")
 
 
 def _workers(text: str) -> int:
@@ -98,6 +109,15 @@ def _report(args: argparse.Namespace, result: api.CaptureResult) -> int:
     payload = {"session": result.session.path, "counts": counts,
                "device_seconds": result.device_seconds}
     lines = [f"session {result.session.path}: {counts.get('done', 0)} steps done{device}"]
+    streamed = getattr(result, "streamed", None)
+    if streamed is not None:
+        payload["streamed"] = streamed
+        if streamed.get("error"):
+            raise api.StreamingError(f"{streamed['error']} (the frames are safe: reduce them "
+                                     f"with `gonio reduce {result.session.path}`)")
+        if streamed.get("table"):
+            lines.append(f"table {streamed['table']}: {streamed['frames']} frames reduced "
+                         "while capturing")
     field = getattr(result, "field", None)  # a light-stage session's reflectance field
     if field is not None:
         payload["field"] = {"folder": result.session.path / api.FIELD_DIR, "images": len(field)}
@@ -133,7 +153,8 @@ def run_capture(args: argparse.Namespace) -> int:
         result = api.capture(args.rig, args.plan, args.out, material=args.material,
                              seed=args.seed, sim_faults=args.sim_fault, progress=bar,
                              calibration=args.calibration,
-                             on_open=eta_from_time_model(bar, args), prompt=terminal_prompt())
+                             on_open=eta_from_time_model(bar, args), prompt=terminal_prompt(),
+                             reduce=args.reduce)
     return _report(args, result)
 
 
@@ -144,11 +165,13 @@ def run_resume(args: argparse.Namespace) -> int:
             step_bar("resume") as bar:
         result = api.resume(args.session, sim_faults=args.sim_fault, progress=bar,
                             on_open=eta_from_time_model(bar, args, resumed=True),
-                            prompt=terminal_prompt())
+                            prompt=terminal_prompt(), reduce=args.reduce and not lights)
     return _report(args, result)
 
 
 def run_reduce(args: argparse.Namespace) -> int:
+    if args.follow:
+        return _follow(args)
     with step_bar("reduce", unit="frame") as bar:
         results = api.reduce_many(args.session, args.out, progress=lambda d, t: bar(d, t),
                                   calibration=args.calibration,
@@ -158,6 +181,24 @@ def run_reduce(args: argparse.Namespace) -> int:
     reports = [_reduce_report(out, result) for out, result in zip(outs, results, strict=True)]
     payload = reports[0][0] if len(reports) == 1 else {"tables": [r[0] for r in reports]}
     report(args, payload, [line for _, lines in reports for line in lines])
+    return 0
+
+
+def _follow(args: argparse.Namespace) -> int:
+    """``gonio reduce --follow SESSION``: one session, on this host."""
+    if len(args.session) != 1 or args.workers or args.scheduler:
+        raise api.StreamingError("--follow reduces one session on this host: give one session "
+                                 "folder and no --workers/--scheduler")
+    with step_bar("reduce", unit="frame") as bar:
+        res = api.follow_session(args.session[0], args.out, calibration=args.calibration,
+                                 checkpoint_every=args.checkpoint_every,
+                                 progress=lambda d, t: bar(d, t))
+    out = res.table if res.table is not None else Path(args.session[0])
+    payload, lines = _reduce_report(out, res.reduction)  # type: ignore[arg-type]
+    if res.pending:
+        lines.append(f"the capture stopped with {res.pending} steps left: `gonio resume "
+                     f"{args.session[0]}` continues it")
+    report(args, {**payload, "pending": res.pending}, lines)
     return 0
 
 

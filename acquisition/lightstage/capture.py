@@ -33,6 +33,7 @@ from acquisition.session.engine import SessionEngine
 from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
+from acquisition.session.runlock import capture_lock
 from acquisition.session.status import PLANNED_STEPS_META
 from acquisition.session.steps import Step
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
@@ -187,8 +188,8 @@ def resume_lightstage(
     total = _frames(steps)
     with folder.journal() as journal:
         journal.set_meta(PLANNED_STEPS_META, total)
-    with open_lightstage(rig, material=material, seed=folder.info.seed, stage=stage,
-                         prompt=prompt) as devices:
+    with capture_lock(folder.path), open_lightstage(
+            rig, material=material, seed=folder.info.seed, stage=stage, prompt=prompt) as devices:
         if on_open:
             on_open(folder, devices.device_time_s())
         engine = LightStageEngine(folder, devices, planner, obs)

@@ -249,21 +249,28 @@ class ImageReducer:
         """Read the journal and the white-reference frames (SessionError if the session is not
         image-based, has no frame, or no usable white reference)."""
         folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
-        rig = folder.rig()
-        if not rig.sample.image_based:
-            raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
-        cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
+        reducer = cls.begin(folder, bundle, min_cos)
         with folder.journal(readonly=True) as journal:
             records = [r for r in journal.steps() if r.status == "done"]
             complete = {g for g in {hdr_group(r.note) for r in records} - {None}
                         if journal.meta(f"{HDR_DONE_META}{g}") is not None}
         if not records:
             raise SessionError(f"{folder.path} has no captured frame yet: run or resume the capture first")
-        reducer = cls(folder, rig, cb, SampleGeometry.of(rig, cb), FrameCheck(folder.path),
-                      sample_frames(records, complete), np.zeros(0), np.zeros((0, 3)),
-                      np.zeros((0, 3)), min_cos)
+        reducer.frames = sample_frames(records, complete)
         reducer._read_references([r for r in records if r.kind == REFERENCE])
         return reducer
+
+    @classmethod
+    def begin(cls, folder: SessionFolder, bundle: str | Path | CalibrationBundle | None = None,
+              min_cos: float = DEFAULT_MIN_COS) -> ImageReducer:
+        """A reducer of no frame and no white reference yet (a capture still running: see
+        :mod:`acquisition.reduction.stream`); SessionError if the session is not image-based."""
+        rig = folder.rig()
+        if not rig.sample.image_based:
+            raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
+        cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
+        return cls(folder, rig, cb, SampleGeometry.of(rig, cb), FrameCheck(folder.path), [],
+                   np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), min_cos)
 
     def _read_references(self, refs: list[StepRecord]) -> None:
         """C (3,) and its variance at every readable white-reference frame."""

@@ -288,10 +288,7 @@ def reduce_session(
 
         return reduce_image_session(folder, progress, bundle=bundle, checkpoint=checkpoint,
                                     checkpoint_every=checkpoint_every)
-    reducer = PointReducer.open(folder, bundle, reference_axis, geometry, progress)
-    table = reducer.new_table()
-    _bin(table, reducer.binned)
-    return reducer.result(table)
+    return PointReducer.open(folder, bundle, reference_axis, geometry, progress).reduce()
 
 
 @dataclass
@@ -379,6 +376,12 @@ class PointReducer:
                                "or options differ): reduce its frames again")
         table = self.new_table()
         table.merge_partial(partial.tables["isotropic"])
+        return self.result(table)
+
+    def reduce(self) -> Reduction:
+        """Every sample binned into the table: the session's reduction."""
+        table = self.new_table()
+        _bin(table, self.binned)
         return self.result(table)
 
     def result(self, table: IsotropicTable) -> Reduction:
@@ -538,11 +541,18 @@ def signal_frames(session_dir: str | Path | SessionFolder) -> list[SignalFrame]:
     """Every frame a point reduction of the session reads: the white references, then the
     samples (plain frames and complete HDR brackets), in journal order."""
     folder = session_dir if isinstance(session_dir, SessionFolder) else SessionFolder(session_dir)
-    records, complete = _done_records(folder)
+    refs, samples = split_samples(*_done_records(folder))
+    return [SignalFrame((r,)) for r in refs] + samples
+
+
+def split_samples(records: list[StepRecord], complete: set[int]
+                  ) -> tuple[list[StepRecord], list[SignalFrame]]:
+    """The white-reference rows among done ``records``, and the sample frames (plain frames
+    and the HDR brackets recorded ``complete``), in journal order."""
     poses, brackets = _samples(records, complete)
-    refs = [SignalFrame((r,)) for r in records if r.kind == REFERENCE]
-    return refs + [SignalFrame((r,)) if (g := hdr_group(r.note)) is None
-                   else SignalFrame(tuple(brackets[g]), bracket=True) for r in poses]
+    refs = [r for r in records if r.kind == REFERENCE]
+    return refs, [SignalFrame((r,)) if (g := hdr_group(r.note)) is None
+                  else SignalFrame(tuple(brackets[g]), bracket=True) for r in poses]
 
 
 def read_signal(folder: SessionFolder, rig: RigConfig, cal: CalibrationBundle | None,

@@ -1,0 +1,180 @@
+"""Reduce a session while it is captured: ``gonio reduce --follow`` and the capture's own
+streaming worker.
+
+:func:`follow_session` reduces the frames of a session as the journal marks them done
+(:mod:`acquisition.reduction.stream`) for as long as a process holds the session's capture
+lock (:mod:`acquisition.session.runlock`), then writes the table: the one ``gonio reduce``
+gives of the same frames, bit for bit. Started before or after the capture, in the capturing
+process's host or beside it, it needs nothing from the capture but its folder.
+
+A capture with ``reduce=True`` (``gonio capture`` without ``--no-reduce``) runs
+:func:`follow_session` in a spawned worker process (:class:`StreamingWorker`): frames are
+decoded on another core and never hold up a move (the capture's process does not even share
+its interpreter lock with the reduction). When the run stops before its end (an error,
+Ctrl-C, SIGKILL), the worker keeps its checkpoint and writes no table; the resumed capture's
+worker continues from that checkpoint.
+
+Followers of one output take turns (an exclusive ``flock`` on the output's checkpoint path's
+folder), so a worker orphaned by a killed capture finishes its checkpoint before the resumed
+capture's worker reads it.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+from acquisition.reduction import CHECKPOINT_EVERY
+from acquisition.reduction.checkpoint import checkpoint_path
+from acquisition.reduction.point import Reduction
+from acquisition.reduction.stream import follow, open_stream
+from acquisition.session.folder import SessionFolder
+from acquisition.session.runlock import capture_running
+from acquisition.tables.isotropic import WHAT as TABLE_WHAT
+from acquisition.tables.isotropic import is_table_file
+from drivers.errors import GonioError, SessionError
+from drivers.storage import check_output, ensure_folder
+
+POLL_S = 0.2
+"""Host seconds between two reads of the journal while the capture runs."""
+
+
+class StreamingError(SessionError):
+    """A streaming reduction could not run or failed (the capture's frames are safe)."""
+
+
+@dataclass
+class FollowResult:
+    """How a followed capture ended for its table."""
+
+    table: Path | None
+    """The table written (None: the capture stopped early and ``incomplete=False``)."""
+    reduction: Reduction | None
+    pending: int
+    """Journal rows the capture left not done."""
+    frames: int
+    """Frames the stream reduced (a resumed stream's checkpoint included)."""
+    resumed: int = 0
+    """Frames taken from the checkpoint of an earlier, interrupted stream."""
+
+
+@contextmanager
+def _followers_take_turns(out: Path) -> Iterator[None]:
+    """One follower at a time per output folder (blocking flock on the folder)."""
+    fd = os.open(out.parent, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def follow_session(
+    session: str | Path,
+    table_path: str | Path | None = None,
+    *,
+    calibration: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    incomplete: bool = True,
+    poll_s: float = POLL_S,
+    progress: Callable[[int, int], None] | None = None,
+    parent: int | None = None,
+) -> FollowResult:
+    """Reduce the session's frames as they are captured; write the table once the capture ends.
+
+    ``incomplete``: write the table also when the capture stopped before its last step (as
+    ``gonio reduce`` would of those frames); otherwise only keep the checkpoint, for the
+    resumed capture. ``progress(frames reduced, journal rows)`` after each read.
+    ``parent``: the capturing process's PID (a capture's own worker): its end ends the
+    capture, even if another capture of the session has begun since.
+    A light-stage session is reduced once its capture has ended.
+    """
+    from acquisition.api.sessions import DEFAULT_TABLE, write_table
+    from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
+
+    folder = SessionFolder(session)
+    out = Path(table_path) if table_path else folder.path / DEFAULT_TABLE
+    check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(folder.path,))
+    if not out.parent.is_dir():
+        ensure_folder(out.parent, what="the table's folder")
+    def running() -> bool:
+        return (parent is None or os.getppid() == parent) and capture_running(folder.path)
+
+    with _followers_take_turns(checkpoint_path(out)):
+        if is_lightstage_session(folder.path):
+            stream = None
+            while running():
+                time.sleep(poll_s)
+            view_pending, frames = _pending(folder), 0
+        else:
+            stream = open_stream(folder, calibration, checkpoint_path(out), checkpoint_every)
+            view = follow(folder, stream, running, poll_s, progress)
+            view_pending, frames = view.pending, stream.frames_reduced
+        if stream is not None and view_pending:  # stopped early: keep what a resume keeps
+            stream.save()
+            if not incomplete:
+                return FollowResult(None, None, view_pending, frames, _resumed(stream))
+            stream.complete(view)
+        result = (reduce_lightstage_session(folder.path) if stream is None else stream.finish())
+        write_table(result, out, folder.path, keep_checkpoint=bool(view_pending))
+    return FollowResult(out, result, view_pending, frames, _resumed(stream))
+
+
+def _resumed(stream: object) -> int:
+    run = getattr(stream, "run", None)
+    return 0 if run is None else int(run.resumed)
+
+
+def _pending(folder: SessionFolder) -> int:
+    with folder.journal(readonly=True) as journal:
+        return sum(n for status, n in journal.counts().items() if status != "done")
+
+
+class StreamingWorker:
+    """A capture's reduction in a worker process (spawned, so it shares nothing with the
+    capture but the session folder): :func:`follow_session` of the session into its default
+    table, written only when the capture ran to its end."""
+
+    def __init__(self, folder: SessionFolder, calibration: str | Path | None = None) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_work, args=(str(folder.path), calibration, os.getpid(),
+                                                    child), name="gonio-streaming", daemon=False)
+        self.proc.start()
+        child.close()
+
+    def result(self) -> dict[str, object]:
+        """Wait for the worker (it ends once the capture lock is released): its report,
+        ``{"table": path or None, "frames": n, "pending": n, "resumed": n}`` or
+        ``{"error": one line}``."""
+        try:
+            report: dict[str, object] = self._conn.recv()
+        except EOFError:
+            report = {}
+        self.proc.join()
+        self._conn.close()
+        if not report:
+            return {"error": f"the streaming reduction ended with exit code {self.proc.exitcode} "
+                             "and no report"}
+        return report
+
+
+def _work(session: str, calibration: str | None, parent: int, conn: Connection) -> None:
+    """The streaming worker process: follow the capture of ``parent``, send the report."""
+    try:
+        res = follow_session(session, calibration=calibration, incomplete=False, parent=parent)
+        report: dict[str, object] = {"table": None if res.table is None else str(res.table),
+                                     "frames": res.frames, "pending": res.pending,
+                                     "resumed": res.resumed}
+    except GonioError as exc:
+        report = {"error": str(exc)}
+    with suppress(OSError):  # the capture was killed: the checkpoint is what counts
+        conn.send(report)
+    conn.close()

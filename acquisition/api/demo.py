@@ -47,15 +47,19 @@ def run_demo(
     t0 = time.monotonic()
     session = Path(out_root) / time.strftime("session-%Y%m%d-%H%M%S")
     result = api.capture(rig, plan, session, material=material, seed=seed, progress=progress,
-                         on_open=on_open)
+                         on_open=on_open, reduce=True)  # the table streamed beside the capture
     with result.session.journal(readonly=True) as journal:
         estimate = float(journal.meta("estimate")["estimated_s"])
-    reduction = api.reduce(result.session, session / "brdf.h5")  # the rig and plan as loaded
+    streamed = result.streamed or {}
+    if not streamed.get("table"):
+        from acquisition.api.streaming import StreamingError
+
+        raise StreamingError(f"the demo's streaming reduction failed: {streamed.get('error')}")
+    from acquisition.api.analysis import open_table, report  # heavy (scipy, matplotlib)
+
+    table = open_table(Path(str(streamed["table"])))
     truth = truth_table(result.session)
-    plot = plot_slices(reduction.table, truth, session / "brdf-slices.png",
-                       title=f"gonio demo — {material}")
-    table = reduction.table
-    from acquisition.api.analysis import report  # heavy (scipy, matplotlib): loaded here
+    plot = plot_slices(table, truth, session / "brdf-slices.png", title=f"gonio demo — {material}")
 
     html = report(session, session / "report.html", table=table).path
     g = np.where(table.count > 0, table.mean[..., 1], -np.inf)

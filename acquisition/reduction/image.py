@@ -324,7 +324,6 @@ class ImageReducer:
     def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
         """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
         frame that cannot be decoded is skipped and noted (``check.raise_if_any``)."""
-        eye = np.eye(self.ref_steps.size)
         for recs in frames:
             rec = recs[0]
             plain = len(recs) == 1 and hdr_group(rec.note) is None
@@ -333,20 +332,23 @@ class ImageReducer:
                 else _merged(self.folder, self.rig, recs, self.cal)))
             if image is None:
                 continue
-            cal = np.array([np.interp(rec.step, self.ref_steps, self.ref_cals[:, c]) for c in range(3)])
-            w = np.array([np.interp(rec.step, self.ref_steps, eye[k]) for k in range(eye.shape[0])])
-            fs = self._frame_samples(image, rec, cal, np.sqrt(w**2 @ self.ref_vars) / cal)
-            yield replace(fs, joints=rec.joints_read or rec.joints_cmd)
+            yield self.frame_samples(image, rec)
 
-    def _frame_samples(self, image: LinearImage, rec: StepRecord, calibration: np.ndarray,
-                       calibration_rel: np.ndarray) -> FrameSamples:
-        """:func:`frame_samples` of a frame; with the numba backend in one compiled pass per
-        pixel (:func:`~acquisition.reduction.imaging.pixel_samples`: the same arrays)."""
+    def frame_samples(self, image: LinearImage, rec: StepRecord) -> FrameSamples:
+        """:func:`frame_samples` of a linearized frame (journal row ``rec``), scaled by the
+        white reference interpolated at its step; with the numba backend in one compiled pass
+        per pixel (:func:`~acquisition.reduction.imaging.pixel_samples`: the same arrays)."""
+        eye = np.eye(self.ref_steps.size)
+        calibration = np.array([np.interp(rec.step, self.ref_steps, self.ref_cals[:, c])
+                                for c in range(3)])
+        w = np.array([np.interp(rec.step, self.ref_steps, eye[k]) for k in range(eye.shape[0])])
+        calibration_rel = np.sqrt(w**2 @ self.ref_vars) / calibration
+        joints = rec.joints_read or rec.joints_cmd
         if resolve_backend() != "numba":
             geo = _geometry(self.rig, rec, image.valid.shape, model=self.model)
-            return frame_samples(image, geo, calibration, rec.step, self.min_cos,
-                                 calibration_rel)
-        g = self.model.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
+            return replace(frame_samples(image, geo, calibration, rec.step, self.min_cos,
+                                         calibration_rel), joints=joints)
+        g = self.model.kinematics.forward_geometry(joints)
         camera, light = frame_camera(self.rig, g.light_dir, g.camera_dir, image.valid.shape,
                                      pointing_deg=self.model.pointing_deg)
         wi, wo, brdf, variance, pixels = pixel_samples(
@@ -354,7 +356,7 @@ class ImageReducer:
             calibration, self.min_cos, self.expected_samples)
         self.expected_samples = wi.shape[0] + wi.shape[0] // 8 + 1024
         return FrameSamples(rec.step, wi, wo, brdf, variance, calibration_rel, pixels,
-                            image.valid.shape)
+                            image.valid.shape, joints)
 
     def new_tables(self, provenance: dict[str, object] | None = None
                    ) -> tuple[IsotropicTable, MerlTable]:

@@ -71,7 +71,13 @@ from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
-from acquisition.reduction.imaging import PixelGeometry, Pixels, frame_geometry
+from acquisition.reduction.imaging import (
+    PixelGeometry,
+    Pixels,
+    frame_camera,
+    frame_geometry,
+    pixel_samples,
+)
 from acquisition.reduction.point import (
     UNCERTAINTY_TERMS,
     Reduction,
@@ -86,6 +92,7 @@ from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable, MerlTable
+from acquisition.tables.backend import resolve_backend
 from acquisition.tables.partial import ReductionPartial
 from calibration.bundle import CalibrationBundle
 from calibration.hdr import merge
@@ -241,6 +248,9 @@ class ImageReducer:
     ref_cals: np.ndarray
     ref_vars: np.ndarray
     min_cos: float = DEFAULT_MIN_COS
+    expected_samples: int = 0
+    """Samples the next frame is expected to give (the last frame's, with a margin): sizes
+    the compiled extraction's outputs (0: half the pixels)."""
 
     @classmethod
     def open(cls, session_dir: str | Path | SessionFolder,
@@ -351,10 +361,27 @@ class ImageReducer:
                 else _merged(self.folder, self.rig, recs, self.cal)))
             if image is None:
                 continue
+            yield self.frame_samples(image, rec)
+
+    def frame_samples(self, image: LinearImage, rec: StepRecord) -> FrameSamples:
+        """:func:`frame_samples` of a linearized frame (journal row ``rec``), scaled by the
+        white reference interpolated at its step; with the numba backend in one compiled pass
+        per pixel (:func:`~acquisition.reduction.imaging.pixel_samples`: the same arrays)."""
+        calibration, calibration_rel = self.reference_at(rec.step)
+        joints = rec.joints_read or rec.joints_cmd
+        if resolve_backend() != "numba":
             geo = _geometry(self.rig, rec, image.valid.shape, model=self.model)
-            cal, cal_rel = self.reference_at(rec.step)
-            fs = frame_samples(image, geo, cal, rec.step, self.min_cos, cal_rel)
-            yield replace(fs, joints=rec.joints_read or rec.joints_cmd)
+            return replace(frame_samples(image, geo, calibration, rec.step, self.min_cos,
+                                         calibration_rel), joints=joints)
+        g = self.model.kinematics.forward_geometry(joints)
+        camera, light = frame_camera(self.rig, g.light_dir, g.camera_dir, image.valid.shape,
+                                     pointing_deg=self.model.pointing_deg)
+        wi, wo, brdf, variance, pixels = pixel_samples(
+            camera, light, self.rig.sample, image.rgb, image.valid, image.variance,
+            calibration, self.min_cos, self.expected_samples)
+        self.expected_samples = wi.shape[0] + wi.shape[0] // 8 + 1024
+        return FrameSamples(rec.step, wi, wo, brdf, variance, calibration_rel, pixels,
+                            image.valid.shape, joints)
 
     def new_tables(self, provenance: dict[str, object] | None = None
                    ) -> tuple[IsotropicTable, MerlTable]:

@@ -24,12 +24,14 @@ Conventions
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
 from acquisition.geometry.pinhole import PinholeCamera
+from acquisition.tables.backend import resolve_backend
 from drivers.errors import ConfigError
 
 Pixels = tuple[np.ndarray, np.ndarray]
@@ -118,6 +120,79 @@ def tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, bt
 
 
+# ---------------------------------------------------------------------------- compiled path
+def frame_parameters(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
+                     shape: str | None = None) -> np.ndarray:
+    """What the compiled kernels need of a frame, float64 (layout: :mod:`.imaging_kernels`):
+    the camera (superpixels, rotation, position in m), the light (m) and the sample (m), its
+    scalars computed here as the numpy path computes them."""
+    from acquisition.reduction import imaging_kernels as k
+
+    kind = shape or sample.shape
+    p = np.zeros(k.N_PARAMS)
+    p[[k.FX, k.FY, k.CX, k.CY]] = camera.fx, camera.fy, camera.cx, camera.cy
+    p[k.ROT:k.ROT + 9] = np.asarray(camera.rotation, np.float64).reshape(9)
+    p[k.POS:k.POS + 3] = camera.position
+    p[k.LIGHT:k.LIGHT + 3] = np.asarray(light_pos, dtype=np.float64)
+    if kind == "flat":
+        p[k.HALF] = sample.size_m / 2.0
+    elif kind == "sphere":
+        centre = np.asarray(sample.centre_m, dtype=np.float64)
+        oc = np.asarray(camera.position, np.float64) - centre
+        p[k.KIND], p[k.HALF] = 1.0, sample.radius_m
+        p[k.CENTRE:k.CENTRE + 3], p[k.OC:k.OC + 3] = centre, oc
+        p[k.C_SPHERE] = oc @ oc - sample.radius_m * sample.radius_m
+    else:
+        raise ConfigError(f"sample shape '{kind}' is unknown: use 'flat' or 'sphere'")
+    return p
+
+
+Columns = list[tuple[tuple[int, ...], type]]
+"""Output columns of a compiled kernel: (shape of one row, dtype) each."""
+
+
+def collect(run: Callable[[list[np.ndarray], int, int], tuple[int, int]], columns: Columns,
+            total: int, capacity: int) -> list[np.ndarray]:
+    """Rows a compiled kernel writes, in arrays grown as needed: ``run(arrays, n, start)``
+    fills rows from ``n`` with the items from ``start`` on and returns (rows written, item
+    stopped at), below ``total`` when the arrays are full. Returns the arrays' written rows
+    (copied when they fill less than three quarters of their capacity)."""
+    cap = max(1, int(capacity))
+    arrays = [np.empty((cap, *shape), dtype) for shape, dtype in columns]
+    n, start = 0, 0
+    while True:
+        n, start = run(arrays, n, start)
+        if start >= total:
+            break
+        cap = 2 * cap
+        grown = [np.empty((cap, *a.shape[1:]), a.dtype) for a in arrays]
+        for g, a in zip(grown, arrays, strict=True):
+            g[:n] = a[:n]
+        arrays = grown
+    return [a[:n].copy() if 4 * n < 3 * cap else a[:n] for a in arrays]
+
+
+def _compiled_geometry(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
+                       shape: str | None, pixels: Pixels | None) -> PixelGeometry:
+    """:func:`pixel_geometry` in one compiled pass per pixel."""
+    from acquisition.reduction import imaging_kernels as k
+
+    p = frame_parameters(camera, light_pos, sample, shape)
+    if pixels is None:
+        rows = cols = np.zeros(0, np.int64)
+        mask_shape: tuple[int, ...] = tuple(camera.shape)
+    else:
+        rows = np.ascontiguousarray(pixels[0], dtype=np.int64).reshape(-1)
+        cols = np.ascontiguousarray(pixels[1], dtype=np.int64).reshape(-1)
+        mask_shape = (rows.size,)
+    mask = np.zeros(int(np.prod(mask_shape)), bool)
+    width = int(camera.shape[1])
+    wi, wo, irradiance = collect(
+        lambda out, n, start: k.geometry(p, width, rows, cols, mask, *out, n, start),
+        [((3,), np.float64), ((3,), np.float64), ((), np.float64)], mask.size, mask.size // 2)
+    return PixelGeometry(mask.reshape(mask_shape), wi, wo, irradiance)
+
+
 # ---------------------------------------------------------------------------- per pixel
 @dataclass(frozen=True)
 class PixelGeometry:
@@ -157,12 +232,19 @@ def pixel_geometry(
     sample: SampleConfig,
     shape: str | None = None,
     pixels: Pixels | None = None,
+    *,
+    backend: str | None = None,
 ) -> PixelGeometry:
     """Per-pixel wi, wo (local frame) and cos θi / r² for one camera and point-light position.
 
     ``shape`` overrides the sample's shape ("flat" for the white-reference plate); ``pixels``
     (rows, columns) restricts it to those pixels (the mask is then theirs, (K,)).
+    ``backend``: "numba" (one compiled pass per pixel, :mod:`.imaging_kernels`) or "numpy"
+    (the reference); default as the tables' (:func:`~acquisition.tables.backend.resolve_backend`).
+    Both give the same arrays, bit for bit.
     """
+    if resolve_backend(backend) == "numba":
+        return _compiled_geometry(camera, light_pos, sample, shape, pixels)
     hits = intersect(sample, camera.position, camera.ray_directions(pixels), shape)
     to_light = np.asarray(light_pos, dtype=np.float64) - hits.points
     r2 = np.einsum("ij,ij->i", to_light, to_light)
@@ -186,6 +268,26 @@ def pixel_geometry(
     return PixelGeometry(mask, wi, wo, wi[:, 2] / r2[keep])
 
 
+def frame_camera(
+    rig: RigConfig,
+    light_dir: np.ndarray,
+    camera_dir: np.ndarray,
+    shape_superpixels: tuple[int, int],
+    *,
+    pointing_deg: tuple[float, float] = (0.0, 0.0),
+    light_pos: np.ndarray | None = None,
+) -> tuple[PinholeCamera, np.ndarray]:
+    """The rig's camera (pointed) and the light's position (m) at the given arm directions
+    (:func:`frame_geometry`'s arguments)."""
+    camera = PinholeCamera.looking_at_origin(
+        camera_intrinsics(rig, shape_superpixels), shape_superpixels, camera_dir,
+        rig.camera_distance_m,
+    ).pointed(*pointing_deg)
+    if light_pos is None:
+        light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
+    return camera, light_pos
+
+
 def frame_geometry(
     rig: RigConfig,
     light_dir: np.ndarray,
@@ -197,6 +299,7 @@ def frame_geometry(
     light_pos: np.ndarray | None = None,
     sample: SampleConfig | None = None,
     pixels: Pixels | None = None,
+    backend: str | None = None,
 ) -> PixelGeometry:
     """:func:`pixel_geometry` for the rig's camera and light at the given arm directions
     (unit vectors in the sample frame, e.g. from ``Kinematics.forward_geometry``).
@@ -205,10 +308,35 @@ def frame_geometry(
     a calibrated pointing error, :meth:`PinholeCamera.pointed`); ``light_pos``: the light's
     position (m; default ``light_distance_m`` along ``light_dir``); ``sample``: the sample's
     shape and place (default the rig file's); ``pixels``: only those (rows, columns)."""
-    camera = PinholeCamera.looking_at_origin(
-        camera_intrinsics(rig, shape_superpixels), shape_superpixels, camera_dir,
-        rig.camera_distance_m,
-    ).pointed(*pointing_deg)
-    if light_pos is None:
-        light_pos = np.asarray(light_dir, dtype=np.float64) * rig.light_distance_m
-    return pixel_geometry(camera, light_pos, sample or rig.sample, target_shape, pixels)
+    camera, light_pos = frame_camera(rig, light_dir, camera_dir, shape_superpixels,
+                                     pointing_deg=pointing_deg, light_pos=light_pos)
+    return pixel_geometry(camera, light_pos, sample or rig.sample, target_shape, pixels,
+                          backend=backend)
+
+
+SampleArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, Pixels]
+"""A frame's samples: wi, wo (N, 3), BRDF (N, 3, sr⁻¹), its variance (N, 3, sr⁻²) or None,
+and their pixels (rows, columns)."""
+
+
+def pixel_samples(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
+                  rgb: np.ndarray, valid: np.ndarray, variance: np.ndarray | None,
+                  calibration: np.ndarray, min_cos: float, capacity: int = 0) -> SampleArrays:
+    """The BRDF samples f = P / (C · cos θi / r²) of an image's valid pixels that see the
+    sample with cos θi, cos θr ≥ ``min_cos`` (``rgb``, ``variance``: (rows, columns, 3) in
+    DN/s and its square; ``calibration`` C (3,)), in one compiled pass per pixel: the same
+    arrays as :func:`pixel_geometry` then :func:`acquisition.reduction.image.frame_samples`,
+    bit for bit. ``capacity``: the samples expected (e.g. the previous frame's), to size the
+    outputs (default half the pixels)."""
+    from acquisition.reduction import imaging_kernels as k
+
+    p = frame_parameters(camera, light_pos, sample)
+    var = np.zeros((0, 0, 3), np.float32) if variance is None else np.ascontiguousarray(variance)
+    cal = np.ascontiguousarray(calibration, dtype=np.float64)
+    rgb, valid = np.ascontiguousarray(rgb), np.ascontiguousarray(valid)
+    f64, i64 = np.float64, np.int64
+    wi, wo, brdf, var_out, rows, cols = collect(
+        lambda out, n, start: k.samples(p, rgb, valid, var, cal, float(min_cos), *out, n, start),
+        [((3,), f64), ((3,), f64), ((3,), f64), ((3,) if variance is not None else (0,), f64),
+         ((), i64), ((), i64)], valid.size, capacity or valid.size // 2)
+    return wi, wo, brdf, None if variance is None else var_out, (rows, cols)

@@ -256,7 +256,8 @@ class IsotropicTable(TableStatistics):
         self._stored_scatter = None
         if self._unc is not None:
             self._acc.check_values(rgb)  # nothing changes unless everything fits
-            self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
+            idx = self._add_uncertainty(ti, tr, dp, rgb, at, variances, uncertainties)
+            return self._acc.add_flat(idx, rgb, checked=True)  # the same bins, indexed once
         return self._acc.add_indexed(
             rgb, lambda a, b, flat: self._index_into(ti[a:b], tr[a:b], dp[a:b], flat))
 
@@ -273,16 +274,20 @@ class IsotropicTable(TableStatistics):
     def _add_uncertainty(self, ti: np.ndarray, tr: np.ndarray, dp: np.ndarray, rgb: np.ndarray,
                          at: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
                          variances: Mapping[str, np.ndarray] | None,
-                         uncertainties: Mapping[str, np.ndarray] | None) -> None:
+                         uncertainties: Mapping[str, np.ndarray] | None) -> np.ndarray:
+        """Add the samples' budget (their values are checked); returns their flat bins, NaN
+        values marked :data:`DROP_NAN` (as the accumulator counts them)."""
         assert self._unc is not None
         if variances is None or uncertainties is None:
             raise ConfigError("this table tracks uncertainty: add() needs variances= and "
                               "uncertainties= for every term")
         idx = self.flat_index(ti, tr, dp)
-        idx[~np.all(np.isfinite(rgb), axis=1)] = DROP_NAN  # as the accumulator drops them
+        with np.errstate(invalid="ignore"):  # checked values: only NaN or ±inf make a NaN sum
+            idx[~np.isfinite(rgb.sum(axis=1))] = DROP_NAN  # as the accumulator drops them
         ai, ar, ap = (ti, tr, dp) if at is None else as_flat_float64(*at)
         angles = np.stack(np.broadcast_arrays(ai, ar, self.normalise_delta_phi(ap)), axis=-1)
         self._unc.add(idx, angles.reshape(-1, 3), variances, uncertainties)
+        return idx
 
     def merge(self, other: IsotropicTable) -> IsotropicTable:
         """New table holding the samples of both (edges must be equal); the uncertainty budget

@@ -1,0 +1,104 @@
+"""Image-based (per-pixel) reduction of one 24 MP frame, against rawpy's bare decode of it.
+
+A one-pose session of ``examples/rig-sphere-sim.toml`` with a 6000 × 4000 px sensor
+(:func:`image_session._rig_24mp`: the 2 cm sphere fills 96 % of the image's height, ~2.7 M
+samples of 6 M superpixels; light and camera 30° apart) is captured into a temporary folder
+(~15–25 s with its two white references), then, interleaved, repeated ``REPEATS`` times:
+
+* the bare decode: ``rawpy.imread`` and ``raw_image_visible.copy()`` of the frame's DNG — the
+  least any reduction must do (LibRaw's unpack and a copy out of its buffer); no
+  ``postprocess()``, whose demosaicing, colour conversion and gamma a radiometric reduction
+  never uses and which would make the ratio look better than it is;
+* the whole image-based reduction of that frame (:meth:`ImageReducer.samples`: decode,
+  linearize with the noise model, per-pixel geometry, sample extraction; then
+  :func:`bin_frames` into fresh MERL and isotropic tables, the budget tracked), with the
+  white references read once beforehand (per session, not per frame);
+* the per-pixel path alone on the already linearized frame
+  (:meth:`ImageReducer.frame_samples` and :func:`bin_frames`).
+
+Figures (medians of the interleaved repeats, wall time on a shared machine):
+``image_reduce_vs_decode`` = decode time / whole reduction time (goal ≥ 0.3, issue 15);
+``image_per_pixel_msamples_per_s`` = samples binned per second of the per-pixel path / 1e6
+(goal ≥ 60); ``image_frame_superpixels_per_s`` = the same path's superpixels per second / 1e6;
+``image_reduce_24mp_s`` and ``image_decode_24mp_s`` the two medians.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import rawpy
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import image_session  # noqa: E402  (the 24 MP rig and its poses)
+
+REPEATS = 5
+
+
+def _capture(folder: Path) -> Path:
+    """A one-pose 24 MP sphere session (plus the plan's two white references)."""
+    rig = image_session._rig_24mp(folder)
+    poses = image_session._phase_poses(image_session.PHASE_DEG)
+    plan = image_session._write_plan(folder / "one.toml", [poses[len(poses) // 2]])
+    image_session._capture(rig, plan, folder / "session")
+    return folder / "session"
+
+
+def _decode(path: Path) -> np.ndarray:
+    with rawpy.imread(str(path)) as raw:
+        return raw.raw_image_visible.copy()
+
+
+def bench_image_reduce() -> dict[str, dict[str, float | str]]:
+    from acquisition.reduction.image import ImageReducer, bin_frames
+    from acquisition.reduction.point import linearize_with_variance
+
+    with tempfile.TemporaryDirectory(prefix="gonio-bench-") as tmp:
+        reducer = ImageReducer.open(_capture(Path(tmp)))
+        frame = reducer.frames[0]
+        dng = reducer.folder.frames_dir / str(frame[0].frame)
+
+        def reduce() -> int:
+            table, merl = reducer.new_tables()
+            return bin_frames(reducer.samples([frame]), table, merl, None, 0)[0]
+
+        def per_pixel(image: object) -> int:
+            table, merl = reducer.new_tables()
+            fs = reducer.frame_samples(image, frame[0])  # type: ignore[arg-type]
+            bin_frames([fs], table, merl, None, 0)
+            return fs.count
+
+        image = linearize_with_variance(dng, reducer.rig, reducer.cal)
+        _decode(dng), reduce(), per_pixel(image)  # warm the page cache and the kernels
+        decode_s, reduce_s, pixel_s = [], [], []
+        for _ in range(REPEATS):
+            t0 = time.perf_counter()
+            _decode(dng)
+            t1 = time.perf_counter()
+            samples = reduce()
+            t2 = time.perf_counter()
+            per_pixel(image)
+            t3 = time.perf_counter()
+            decode_s.append(t1 - t0)
+            reduce_s.append(t2 - t1)
+            pixel_s.append(t3 - t2)
+        superpixels = image.valid.size
+    decode, whole, pixel = (statistics.median(x) for x in (decode_s, reduce_s, pixel_s))
+    return {
+        "image_reduce_vs_decode": {"value": decode / whole, "unit": "ratio"},
+        "image_per_pixel_msamples_per_s": {"value": samples / pixel / 1e6, "unit": "Msamples/s"},
+        "image_frame_superpixels_per_s": {"value": superpixels / pixel / 1e6, "unit": "M/s"},
+        "image_reduce_24mp_s": {"value": whole, "unit": "s"},
+        "image_decode_24mp_s": {"value": decode, "unit": "s"},
+        "image_frame_samples": {"value": samples, "unit": "samples"},
+    }
+
+
+if __name__ == "__main__":
+    for key, fig in bench_image_reduce().items():
+        print(f"{key}: {fig['value']:.4g} {fig['unit']}")

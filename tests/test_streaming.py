@@ -88,6 +88,9 @@ def test_a_streamed_point_capture_ends_with_the_reduced_table(tmp_path: Path) ->
     assert not (tmp_path / "p" / "brdf.h5").exists()
     api.reduce(tmp_path / "s", tmp_path / "again.h5")
     assert_same_tables(tmp_path / "s" / "brdf.h5", tmp_path / "again.h5")
+    status = api.session_status(tmp_path / "s", drift=False, verify=False)
+    assert status.tables == ["brdf.h5"] and not status.capturing
+    assert f"table     {tmp_path / 's' / 'brdf.h5'} (reduced)" in status.lines()
 
 
 def test_image_frames_are_binned_during_the_capture_into_the_reduced_table(tmp_path: Path) -> None:
@@ -96,23 +99,44 @@ def test_image_frames_are_binned_during_the_capture_into_the_reduced_table(tmp_p
     plan = _plan(tmp_path, SPHERE_PLAN)
     session = tmp_path / "s"
     seen: list[tuple[int, bool]] = []
+    live: list[tuple[dict, dict]] = []  # (the live table's "live" provenance, gonio info's json)
     result: dict[str, api.FollowResult] = {}
+    live_path = tmp_path / "streamed.live.h5"
+
+    class HoldForTheLiveTable(api.Observer):
+        """Mid-capture (host time only: the rig's clock stands still), wait for the live
+        table, read it and `gonio info`."""
+
+        def step(self, event: object) -> None:
+            if live or _done(session) < 8:
+                return
+            deadline = time.monotonic() + 60
+            while not live_path.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            live.append((api.open_table(live_path).provenance["live"],
+                         api.session_status(session, drift=False, verify=False).to_json()))
+
+    def progress(done: int, rows: int) -> None:
+        seen.append((done, capture_running(session)))
 
     def follower() -> None:
         while _done(session) < 1:
             time.sleep(0.01)
-        result["r"] = api.follow_session(
-            session, tmp_path / "streamed.h5", checkpoint_every=1, poll_s=0.05,
-            progress=lambda done, rows: seen.append((done, capture_running(session))))
+        result["r"] = api.follow_session(session, tmp_path / "streamed.h5", checkpoint_every=1,
+                                         poll_s=0.05, snapshot_s=0.0, progress=progress)
 
     thread = threading.Thread(target=follower)
     thread.start()
-    api.capture(SPHERE_RIG, plan, session, material=SPHERE_MATERIAL, seed=2)
+    api.capture(SPHERE_RIG, plan, session, material=SPHERE_MATERIAL, seed=2,
+                observers=[HoldForTheLiveTable()])
     thread.join(timeout=300)
     res = result["r"]
     assert res.pending == 0 and res.table == tmp_path / "streamed.h5" and res.frames == 7
     assert any(done > 0 and running for done, running in seen), seen  # binned mid-capture
-    assert not checkpoint_path(res.table).exists()
+    assert not checkpoint_path(res.table).exists() and not live_path.exists()
+    # The table of the frames so far could be read mid-capture, and gonio info said so.
+    assert live and all(0 < p["frames_reduced"] < 7 for p, _ in live), live
+    assert live[0][1]["capturing"] and live[0][1]["counts"].get("done") < 12, live
     api.reduce(session, tmp_path / "batch.h5")
     assert_same_tables(tmp_path / "streamed.h5", tmp_path / "batch.h5")
 

@@ -34,7 +34,7 @@ from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer
 from acquisition.session.runlock import capture_lock
-from acquisition.session.status import LINK_STATS_META
+from acquisition.session.status import DEFAULT_TABLE, LINK_STATS_META
 from acquisition.session.steps import CUSTOM, Step, count_rows, pose_steps
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from acquisition.simworld.servos import check_sim_faults
@@ -42,9 +42,6 @@ from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
 from drivers.errors import ConfigError, SessionError, StorageError
 from drivers.storage import check_output
-
-DEFAULT_TABLE = "brdf.h5"
-"""Where ``reduce`` writes in the session folder when no table path is given."""
 
 Progress = Callable[[int, int, StepRecord], None]
 OnOpen = Callable[[SessionFolder, float | None], None]

@@ -34,9 +34,10 @@ from pathlib import Path
 from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.checkpoint import checkpoint_path
 from acquisition.reduction.point import Reduction
-from acquisition.reduction.stream import follow, open_stream
+from acquisition.reduction.stream import ImageStream, JournalView, PointStream, follow, open_stream
 from acquisition.session.folder import SessionFolder
 from acquisition.session.runlock import capture_running
+from acquisition.session.status import LIVE_TABLE_SUFFIX
 from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
 from drivers.errors import GonioError, SessionError
@@ -44,6 +45,16 @@ from drivers.storage import check_output, ensure_folder
 
 POLL_S = 0.2
 """Host seconds between two reads of the journal while the capture runs."""
+SNAPSHOT_S = 10.0
+"""Host seconds between two partial tables written while the capture runs."""
+
+
+def live_table_path(table_path: str | os.PathLike[str]) -> Path:
+    """Where a followed capture's partial table goes: ``NAME.live.h5`` beside ``NAME.h5``
+    (the frames reduced so far, rewritten every :data:`SNAPSHOT_S`, deleted with the final
+    table)."""
+    path = Path(table_path)
+    return path.with_name(path.stem + LIVE_TABLE_SUFFIX)
 
 
 class StreamingError(SessionError):
@@ -84,6 +95,7 @@ def follow_session(
     checkpoint_every: int = CHECKPOINT_EVERY,
     incomplete: bool = True,
     poll_s: float = POLL_S,
+    snapshot_s: float = SNAPSHOT_S,
     progress: Callable[[int, int], None] | None = None,
     parent: int | None = None,
 ) -> FollowResult:
@@ -91,7 +103,10 @@ def follow_session(
 
     ``incomplete``: write the table also when the capture stopped before its last step (as
     ``gonio reduce`` would of those frames); otherwise only keep the checkpoint, for the
-    resumed capture. ``progress(frames reduced, journal rows)`` after each read.
+    resumed capture. ``progress(frames reduced, journal rows)`` after each read. Every
+    ``snapshot_s`` host seconds while the capture runs, the table of the frames reduced so far
+    is written to :func:`live_table_path` (a table like any other, its provenance's
+    ``live`` says how far it got); it is deleted once the table is written.
     ``parent``: the capturing process's PID (a capture's own worker): its end ends the
     capture, even if another capture of the session has begun since.
     A light-stage session is reduced once its capture has ended.
@@ -115,7 +130,8 @@ def follow_session(
             view_pending, frames = _pending(folder), 0
         else:
             stream = open_stream(folder, calibration, checkpoint_path(out), checkpoint_every)
-            view = follow(folder, stream, running, poll_s, progress)
+            snapshots = _Snapshots(stream, live_table_path(out), folder.path, snapshot_s)
+            view = follow(folder, stream, running, poll_s, progress, snapshots.maybe_write)
             view_pending, frames = view.pending, stream.frames_reduced
         if stream is not None and view_pending:  # stopped early: keep what a resume keeps
             stream.save()
@@ -124,7 +140,31 @@ def follow_session(
             stream.complete(view)
         result = (reduce_lightstage_session(folder.path) if stream is None else stream.finish())
         write_table(result, out, folder.path, keep_checkpoint=bool(view_pending))
+        with suppress(FileNotFoundError):
+            live_table_path(out).unlink()
     return FollowResult(out, result, view_pending, frames, _resumed(stream))
+
+
+class _Snapshots:
+    """Writes the stream's partial table every ``every_s`` host seconds when it has grown."""
+
+    def __init__(self, stream: PointStream | ImageStream, path: Path, session: Path,
+                 every_s: float) -> None:
+        self.stream, self.path, self.session, self.every_s = stream, path, session, every_s
+        self._last_t, self._last_frames = time.monotonic(), 0
+
+    def maybe_write(self, view: JournalView) -> None:
+        frames = self.stream.frames_reduced
+        if time.monotonic() - self._last_t < self.every_s or frames == self._last_frames:
+            return
+        snap = self.stream.snapshot()
+        if snap is not None:
+            snap.table.provenance["live"] = {
+                "frames_reduced": frames, "journal_rows": len(view.rows),
+                "rows_done": len(view.rows) - view.pending, "written_at": time.time()}
+            snap.table.save_h5(self.path, inputs=(self.session,),
+                               merl=getattr(snap, "merl", None))
+        self._last_t, self._last_frames = time.monotonic(), frames
 
 
 def _resumed(stream: object) -> int:

@@ -52,6 +52,7 @@ from acquisition.session.folder import SessionFolder
 from acquisition.session.hdr import HDR_DONE_META, hdr_group
 from acquisition.session.journal import StepRecord
 from calibration.bundle import CalibrationBundle
+from drivers.errors import SessionError
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,15 @@ class PointStream:
         """The session's reduction from the signals read (the others, if any, read now)."""
         self.check.raise_if_any()
         return PointReducer.open(self.folder, self.bundle, signals=self.signals).reduce()
+
+    def snapshot(self) -> Reduction | None:
+        """The table of the frames done so far (None before a reference and a sample)."""
+        if self.check.bad or not self.signals:
+            return None
+        try:
+            return self.finish()
+        except SessionError:  # no white reference or no sample yet
+            return None
 
 
 @dataclass
@@ -235,6 +245,17 @@ class ImageStream:
         self.run.every = 0
         self.update(view, final=True)
 
+    def snapshot(self) -> ImageReduction | None:
+        """The tables of the frames binned so far (None before the first), finished on copies:
+        the running sums go on."""
+        if not self.run.steps:
+            return None
+        table, merl = self.reducer.tables()
+        done = self.run.partial()
+        table.merge_partial(done.tables["isotropic"])
+        merl.merge_partial(done.tables["merl"])
+        return self.reducer.finish(table, merl, done, self.t0, resumed=self.run.resumed)
+
     def finish(self) -> ImageReduction:
         """The reduction of every frame binned (after the last :meth:`update`, or
         :meth:`complete`)."""
@@ -256,10 +277,12 @@ def open_stream(folder: SessionFolder, bundle: str | Path | None = None,
 
 def follow(folder: SessionFolder, stream: PointStream | ImageStream,
            running: Callable[[], bool], poll_s: float = 0.2,
-           progress: Callable[[int, int], None] | None = None) -> JournalView:
+           progress: Callable[[int, int], None] | None = None,
+           each_round: Callable[[JournalView], None] | None = None) -> JournalView:
     """Feed ``stream`` the journal every ``poll_s`` host seconds until ``running()`` turns
     False, then once more (the capture has ended); returns that last view.
-    ``progress(frames reduced, journal rows)`` after each round."""
+    ``progress(frames reduced, journal rows)`` and ``each_round(view)`` after each round but
+    the last."""
     while True:
         ended = not running()  # asked before reading: the last read sees every row
         view = JournalView.read(folder, ended)
@@ -268,4 +291,6 @@ def follow(folder: SessionFolder, stream: PointStream | ImageStream,
             progress(stream.frames_reduced, len(view.rows))
         if ended:
             return view
+        if each_round:
+            each_round(view)
         time.sleep(poll_s)

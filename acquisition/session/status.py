@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from acquisition.session.folder import SessionFolder
+from acquisition.session.runlock import capture_running
 from acquisition.session.steps import (
     REFERENCE,
 )
@@ -21,6 +22,10 @@ if TYPE_CHECKING:
 
 
 # ---------------------------------------------------------------------------- gonio info
+DEFAULT_TABLE = "brdf.h5"
+"""The session's own table (``gonio reduce``'s default output, a streaming capture's table)."""
+LIVE_TABLE_SUFFIX = ".live.h5"
+"""A streaming reduction's table of the frames reduced so far: ``brdf.live.h5``."""
 PLANNED_STEPS_META = "planned_steps"
 """Journal meta of a session whose steps are journaled as they are reached (a light stage):
 how many journal steps its whole sequence has."""
@@ -64,6 +69,11 @@ class SessionStatus:
     """Per axis over all runs: requests, retries and goal resends on its servo bus."""
     bad_frames: list[str] = field(default_factory=list)
     """Done frames missing or failing their SHA-256 (counted as errors); empty unchecked."""
+    capturing: bool = False
+    """A process captures the session now (:func:`~acquisition.session.runlock.capture_running`)."""
+    tables: list[str] = field(default_factory=list)
+    """Table files in the folder: ``brdf.h5``, and ``brdf.live.h5`` while a streaming
+    reduction follows the capture (the frames reduced so far)."""
 
     @property
     def total(self) -> int:
@@ -86,6 +96,8 @@ class SessionStatus:
             "drift_pct": self.drift_pct,
             "link": self.link,
             "bad_frames": self.bad_frames,
+            "capturing": self.capturing,
+            "tables": self.tables,
         }
 
     def lines(self, max_events: int = 10) -> list[str]:
@@ -97,8 +109,13 @@ class SessionStatus:
             f"progress  {self.done}/{self.total} steps done ({pct:.0f} %)"
             + "".join(f"; {k} {d}/{t}" for k, (d, t) in self.by_kind.items()),
         ]
-        if self.done < self.total:
+        if self.capturing:
+            out.append("          being captured now (by another process)")
+        elif self.done < self.total:
             out.append(f"          {self.total - self.done} to do: `gonio resume {self.folder.path}`")
+        for name in self.tables:
+            what = "the frames reduced so far" if name.endswith(LIVE_TABLE_SUFFIX) else "reduced"
+            out.append(f"table     {self.folder.path / name} ({what})")
         timing = f"timing    host {self.host_busy_s:.1f} s busy"
         if self.host_span_s is not None:
             timing += f" over {self.host_span_s:.1f} s"
@@ -178,4 +195,7 @@ def session_status(path: str | Path, *, drift: bool = True, verify: bool = True
         sum(1 for e in all_events if e[3].startswith("run started")),
         sum(1 for r in records if r.attempts > 1),
         [e for e in all_events if e[1] in ("warning", "error")], drift_pct, link, bad,
+        capture_running(folder.path),
+        [n for n in (DEFAULT_TABLE, DEFAULT_TABLE.removesuffix(".h5") + LIVE_TABLE_SUFFIX)
+         if (folder.path / n).is_file()],
     )

@@ -66,10 +66,10 @@ import numpy as np
 
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
-from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
+from acquisition.reduction.fixedorder import weighted_variance
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import (
     PixelGeometry,
@@ -86,6 +86,7 @@ from acquisition.reduction.point import (
     noise_source,
     session_provenance,
 )
+from acquisition.reduction.pose_kernels import sample_poses
 from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
@@ -327,7 +328,7 @@ class ImageReducer:
         pair = slice(lo, hi + 1)
         cal = np.array([np.interp(step, xs[pair], self.ref_cals[pair, c]) for c in range(3)])
         w = np.array([np.interp(step, xs[pair], e) for e in np.eye(hi + 1 - lo)])
-        return cal, np.sqrt(w**2 @ self.ref_vars[pair]) / cal
+        return cal, np.sqrt(weighted_variance(w, self.ref_vars[pair])) / cal
 
     @property
     def n_references(self) -> int:
@@ -490,7 +491,7 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
     samples = count = 0
     for fs in frames:
         merl.add_vectors(fs.wi, fs.wo, fs.brdf)
-        angles = poses_from_directions(fs.wi, fs.wo)
+        angles = sample_poses(fs.wi, fs.wo)  # libm's atan2: the same bits on every CPU
         budget = {}
         if table.tracks_uncertainty:
             nan = np.full(fs.brdf.shape, np.nan)

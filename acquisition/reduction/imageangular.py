@@ -67,7 +67,7 @@ import numpy as np
 from acquisition.config.rig import RigConfig
 from acquisition.geometry.alignment import POINTING_PARAMS
 from acquisition.geometry.halfdiff import halfdiff_from_vectors
-from acquisition.geometry.kinematics import Kinematics, poses_from_directions
+from acquisition.geometry.kinematics import Kinematics
 from acquisition.geometry.kinematics.calibrated import CalibratedKinematics
 from acquisition.reduction.angular import (
     ANGULAR_TERM,
@@ -84,6 +84,7 @@ from acquisition.reduction.angular import (
     with_irradiance,
 )
 from acquisition.reduction.imaging import Pixels, frame_geometry
+from acquisition.reduction.pose_kernels import sample_poses
 from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.tables import IsotropicTable
 
@@ -254,7 +255,7 @@ class _FrameGroups:
     @classmethod
     def of(cls, table: IsotropicTable, pixels: Pixels, wi: np.ndarray, wo: np.ndarray,
            values: np.ndarray) -> _FrameGroups | None:
-        angles = poses_from_directions(wi, wo)
+        angles = sample_poses(wi, wo)  # the bins bin_frames puts these samples in
         flat = table.flat_index(angles[:, 0], angles[:, 1], angles[:, 2])
         keep = (flat >= 0) & np.all(np.isfinite(values), axis=1)
         if not keep.any():

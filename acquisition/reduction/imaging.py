@@ -31,6 +31,7 @@ import numpy as np
 
 from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
 from acquisition.geometry.pinhole import PinholeCamera
+from acquisition.reduction.fixedorder import dot3, norm3
 from acquisition.tables.backend import resolve_backend
 from drivers.errors import ConfigError
 
@@ -82,8 +83,8 @@ def intersect_sphere(
 ) -> Hits:
     """Rays (unit ``dirs``) against a sphere: the nearest intersection in front of the camera."""
     oc = origin - np.asarray(centre_m, dtype=np.float64)
-    b = dirs @ oc
-    disc = b * b - (oc @ oc - radius_m * radius_m)
+    b = dot3(dirs, oc)
+    disc = b * b - (dot3(oc, oc) - radius_m * radius_m)
     hit = disc >= 0.0
     with np.errstate(invalid="ignore"):
         t = -b[hit] - np.sqrt(disc[hit])
@@ -93,7 +94,7 @@ def intersect_sphere(
         t = t[front]
     points = origin + t[:, None] * dirs[hit]
     normals = (points - centre_m) / radius_m
-    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    normals /= norm3(normals)[:, None]
     return Hits(hit, points, normals)
 
 
@@ -141,7 +142,7 @@ def frame_parameters(camera: PinholeCamera, light_pos: np.ndarray, sample: Sampl
         oc = np.asarray(camera.position, np.float64) - centre
         p[k.KIND], p[k.HALF] = 1.0, sample.radius_m
         p[k.CENTRE:k.CENTRE + 3], p[k.OC:k.OC + 3] = centre, oc
-        p[k.C_SPHERE] = oc @ oc - sample.radius_m * sample.radius_m
+        p[k.C_SPHERE] = dot3(oc, oc) - sample.radius_m * sample.radius_m
     else:
         raise ConfigError(f"sample shape '{kind}' is unknown: use 'flat' or 'sphere'")
     return p
@@ -247,13 +248,13 @@ def pixel_geometry(
         return _compiled_geometry(camera, light_pos, sample, shape, pixels)
     hits = intersect(sample, camera.position, camera.ray_directions(pixels), shape)
     to_light = np.asarray(light_pos, dtype=np.float64) - hits.points
-    r2 = np.einsum("ij,ij->i", to_light, to_light)
+    r2 = dot3(to_light, to_light)
     wi_world = to_light / np.sqrt(r2)[:, None]
     wo_world = camera.position - hits.points
-    wo_world /= np.linalg.norm(wo_world, axis=-1, keepdims=True)
+    wo_world /= norm3(wo_world)[:, None]
     n = hits.normals
-    cos_i = np.einsum("ij,ij->i", wi_world, n)
-    cos_o = np.einsum("ij,ij->i", wo_world, n)
+    cos_i = dot3(wi_world, n)
+    cos_o = dot3(wo_world, n)
     keep = (cos_i > 0.0) & (cos_o > 0.0)
     mask = hits.hit.copy()
     mask[mask] = keep
@@ -261,8 +262,7 @@ def pixel_geometry(
     t, b = tangent_frames(np.ascontiguousarray(n))
 
     def local(v: np.ndarray) -> np.ndarray:
-        return np.stack([np.einsum("ij,ij->i", v, t), np.einsum("ij,ij->i", v, b),
-                         np.einsum("ij,ij->i", v, n)], axis=-1)
+        return np.stack([dot3(v, t), dot3(v, b), dot3(v, n)], axis=-1)
 
     wi, wo = local(wi_world), local(wo_world)
     return PixelGeometry(mask, wi, wo, wi[:, 2] / r2[keep])

@@ -1,20 +1,17 @@
 """Numba kernels of the per-pixel geometry (:mod:`acquisition.reduction.imaging`) and of a
 frame's BRDF samples (:func:`acquisition.reduction.image.frame_samples`), in one pass per pixel.
 
-Bit for bit the numpy path: each pixel goes through the same IEEE operations, in the same
-order, as the numpy code does them on this platform (x86-64, numpy 2 with AVX-512, OpenBLAS):
-
-* ``np.einsum("ij,ij->i", a, b)`` over three components is a SIMD multiply-add into zeros,
-  then a horizontal sum: (a₀b₀ + a₂b₂) + a₁b₁, each product + 0 (:func:`_dot`);
-* ``dirs @ oc`` (OpenBLAS ``dgemv``) is fma(d₂, o₂, fma(d₀, o₀, d₁·o₁)) (:func:`_gemv3`,
-  through LLVM's exact ``llvm.fma.f64``);
-* ``np.linalg.norm(v, axis=-1)`` is √((v₀² + v₁²) + v₂²); everything else is elementwise.
+Bit for bit the numpy path, on every CPU: each pixel goes through the same IEEE operations, in
+the same order, as the numpy code does them, and that code is elementwise only
+(:mod:`acquisition.reduction.fixedorder`: no einsum, no BLAS, whose orders and fused
+multiply-adds change with the CPU): a dot product is (a₀b₀ + a₁b₁) + a₂b₂ (:func:`_dot`), a
+norm its square root (:func:`_norm`), as ``np.linalg.norm`` of a ray (√((v₀² + v₁²) + v₂²)).
 
 Nothing here calls a transcendental function (square roots and divisions are correctly
 rounded everywhere), there is no fast-math (no contraction, no reassociation), and
 tests/test_imaging_kernels.py compares both paths on random cameras, lights and samples. The
-scalars of a frame (camera rotation, ``oc · oc − r²``) are computed once by the numpy code and
-passed in (:func:`frame_parameters`).
+scalars of a frame (camera rotation, ``oc · oc − r²``) are computed once by the numpy code
+(elementwise too) and passed in (:func:`frame_parameters`).
 
 Outputs are compacted: a kernel walks the pixels from ``start`` and writes every kept pixel
 into the next free row of its output arrays; when they are full it returns where it stopped
@@ -28,10 +25,7 @@ import os
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels
 
 import numpy as np  # noqa: E402
-from llvmlite import ir  # noqa: E402
-from numba import njit, types  # noqa: E402
-from numba.core import cgutils  # noqa: E402
-from numba.extending import intrinsic  # noqa: E402
+from numba import njit  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
@@ -44,42 +38,19 @@ KIND = 19  # 0 flat, 1 sphere
 HALF = 20  # flat: half the edge, m; sphere: radius, m
 CENTRE = 21  # sphere centre (3), m
 OC = 24  # camera position − centre (3), m
-C_SPHERE = 27  # oc · oc − r², m² (numpy's dot)
+C_SPHERE = 27  # oc · oc − r², m² (fixedorder.dot3)
 N_PARAMS = 28
-
-
-@intrinsic
-def fma(typingctx, x, y, z):  # pragma: no cover - compiled
-    """x·y + z rounded once (LLVM's ``llvm.fma.f64``: the hardware's fused multiply-add)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        d = ir.DoubleType()
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(d, [d, d, d]),
-                                            "llvm.fma.f64")
-        return builder.call(fn, args)
-
-    return sig, codegen
 
 
 @njit(inline="always", **_JIT)
 def _dot(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
-    """``np.einsum("ij,ij->i")`` of one row: products into zeros, (p₀ + p₂) + p₁."""
-    p0 = a0 * b0 + 0.0
-    p1 = a1 * b1 + 0.0
-    p2 = a2 * b2 + 0.0
-    return (p0 + p2) + p1
-
-
-@njit(inline="always", **_JIT)
-def _gemv3(d0, d1, d2, o0, o1, o2):  # pragma: no cover - compiled
-    """One row of ``dirs @ oc`` as OpenBLAS's dgemv computes it."""
-    return fma(d2, o2, fma(d0, o0, d1 * o1))
+    """:func:`~acquisition.reduction.fixedorder.dot3` of one row: (a₀b₀ + a₁b₁) + a₂b₂."""
+    return (a0 * b0 + a1 * b1) + a2 * b2
 
 
 @njit(inline="always", **_JIT)
 def _norm(v0, v1, v2):  # pragma: no cover - compiled
-    """``np.linalg.norm`` of one row."""
+    """``np.linalg.norm`` / :func:`~acquisition.reduction.fixedorder.norm3` of one row."""
     return np.sqrt((v0 * v0 + v1 * v1) + v2 * v2)
 
 
@@ -104,7 +75,7 @@ def _hit(p, d0, d1, d2):  # pragma: no cover - compiled
         y = p[POS + 1] + t * d1
         ok = t > 0.0 and abs(x) <= p[HALF] and abs(y) <= p[HALF] and p[POS + 2] > 0.0
         return ok, x, y, 0.0, 0.0, 0.0, 1.0
-    b = _gemv3(d0, d1, d2, p[OC], p[OC + 1], p[OC + 2])
+    b = _dot(d0, d1, d2, p[OC], p[OC + 1], p[OC + 2])
     disc = b * b - p[C_SPHERE]
     if not disc >= 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0

@@ -75,6 +75,7 @@ from acquisition.reduction.angular import (
 )
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import reduction_key
+from acquisition.reduction.fixedorder import weighted_variance
 from acquisition.reduction.samplegeometry import SampleGeometry
 from acquisition.session.engine import POSE, REFERENCE
 from acquisition.session.folder import SessionFolder
@@ -235,7 +236,7 @@ def reference_curves(
 
     def var_at(when: float) -> np.ndarray:
         w = np.array([np.interp(when, steps, eye[k]) for k in range(len(refs))])
-        return (w**2) @ variances
+        return weighted_variance(w, variances)  # no BLAS: the same bits on every CPU
 
     return at, var_at
 

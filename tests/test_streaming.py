@@ -4,6 +4,7 @@ process, and after a SIGKILL and `gonio resume`."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sqlite3
 import subprocess
@@ -161,31 +162,46 @@ def test_reduce_follow_follows_a_capture_in_another_process(tmp_path: Path) -> N
     assert_same_tables(session / "brdf.h5", tmp_path / "batch.h5")
 
 
-def test_sigkill_of_a_streaming_capture_then_resume_gives_the_uninterrupted_table(
-        tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def whole_sphere(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An uninterrupted streaming capture of the sphere plan: its table."""
+    folder = tmp_path_factory.mktemp("whole")
+    plan = _plan(folder, SPHERE_PLAN)
+    api.capture(SPHERE_RIG, plan, folder / "s", material=SPHERE_MATERIAL, seed=4, reduce=True)
+    return folder / "s" / "brdf.h5"
+
+
+@pytest.mark.parametrize("how", ["SIGKILL", "Ctrl-C"])
+def test_a_streaming_capture_stopped_then_resumed_gives_the_uninterrupted_table(
+        how: str, whole_sphere: Path, tmp_path: Path) -> None:
+    """SIGKILL of the capture alone (its worker, orphaned, keeps its frames), or Ctrl-C at the
+    terminal (SIGINT to the whole process group: the worker leaves it to the capture)."""
     plan = _plan(tmp_path, SPHERE_PLAN)
-    whole = tmp_path / "whole"
-    api.capture(SPHERE_RIG, plan, whole, material=SPHERE_MATERIAL, seed=4, reduce=True)
     session = tmp_path / "s"
     proc = subprocess.Popen(
         [str(GONIO), "capture", "--rig", str(SPHERE_RIG), "--plan", str(plan), "--out",
          str(session), "--material", SPHERE_MATERIAL, "--seed", "4"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + 120
     while _done(session) < 6 and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.005)
-    proc.send_signal(signal.SIGKILL)
-    assert proc.wait(timeout=30) == -signal.SIGKILL, "the capture ended before the kill"
-    checkpoint = checkpoint_path(session / "brdf.h5")  # the orphaned worker keeps its frames
+    if how == "SIGKILL":
+        proc.send_signal(signal.SIGKILL)
+        assert proc.wait(timeout=30) == -signal.SIGKILL, "the capture ended before the kill"
+    else:
+        os.killpg(proc.pid, signal.SIGINT)
+        err = proc.communicate(timeout=60)[1].decode()
+        assert proc.returncode != 0 and _done(session) < 12, err  # stopped mid-run
+    checkpoint = checkpoint_path(session / "brdf.h5")  # the worker keeps its frames
     while not checkpoint.exists() and time.monotonic() < deadline:
         time.sleep(0.05)
     kept = load_partial(checkpoint).steps
     assert kept and not (session / "brdf.h5").exists()
-    result = api.resume(session, reduce=True)  # its worker waits for the orphaned one
+    result = api.resume(session, reduce=True)  # its worker waits for an orphaned one
     assert result.streamed is not None and result.streamed["pending"] == 0, result.streamed
     assert result.streamed["resumed"] == len(kept) and result.streamed["frames"] == 7
     assert not checkpoint.exists()
-    assert_same_tables(session / "brdf.h5", whole / "brdf.h5")
+    assert_same_tables(session / "brdf.h5", whole_sphere)
 
 
 def test_a_second_capture_of_a_running_session_is_refused(tmp_path: Path) -> None:

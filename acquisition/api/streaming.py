@@ -24,6 +24,7 @@ from __future__ import annotations
 import fcntl
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
@@ -207,7 +208,10 @@ class StreamingWorker:
 
 
 def _work(session: str, calibration: str | None, parent: int, conn: Connection) -> None:
-    """The streaming worker process: follow the capture of ``parent``, send the report."""
+    """The streaming worker process: follow the capture of ``parent``, send the report.
+    Ctrl-C at the terminal reaches the whole process group: the worker leaves it to the
+    capture, whose end ends the worker (its checkpoint saved)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         res = follow_session(session, calibration=calibration, incomplete=False, parent=parent)
         report: dict[str, object] = {"table": None if res.table is None else str(res.table),

@@ -214,3 +214,11 @@ def test_a_second_capture_of_a_running_session_is_refused(tmp_path: Path) -> Non
         with pytest.raises(SessionError, match="being captured by another gonio process"):
             api.resume(session)
     assert not capture_running(session)
+
+
+def test_follow_takes_one_session_here(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from acquisition.cli import main
+
+    assert main(["reduce", "--follow", str(tmp_path / "a"), str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "--follow reduces one session on this host" in err and err.count("\n") == 1

@@ -98,3 +98,44 @@ def test_out_of_range_raises_the_reference_error(field: str) -> None:
         bin_frames([fs], *fused, None, 0)
     assert str(got.value) == str(want.value)
     _same(ref, fused)  # a value changes neither table; a budget term leaves the MERL one
+
+
+@pytest.mark.parametrize("fold", [True, False])
+def test_isotropic_index_at_edges_and_the_turn_matches_numpy(fold: bool) -> None:
+    """The compiled index's shortcuts (a bin guessed from the edges' span, Δφ mod 360 without
+    fmod below one turn) give numpy's bins just beside every edge and ±360°."""
+    ei = np.array([0.0, 5.0, 12.5, 30.0, 60.0, 89.0, 90.0])
+    ep = np.linspace(0.0, 180.0, 13) if fold else np.linspace(-180.0, 180.0, 25)
+    tables = [IsotropicTable(ei, ei, ep, fold_delta_phi=fold, backend=b)
+              for b in ("numba", "numpy")]
+    def beside(edges: tuple[float, ...]) -> list[float]:
+        return [np.nextafter(e, s) for e in edges for s in (-np.inf, np.inf)]
+
+    turn = np.array([*beside((*ep, 360.0, -360.0, 0.0)), *ep, -0.0, -1e-300, 1e-300, 720.0,
+                     -540.0, 1e300, -np.inf])
+    ti = np.resize(np.array([*beside(tuple(ei)), *ei, np.nan]), turn.size)
+    got, want = (t.flat_index(ti, ti[::-1], turn) for t in tables)
+    np.testing.assert_array_equal(got, want)
+    assert (got >= 0).sum() > turn.size // 3
+
+
+def test_cached_kernels_dropped_when_a_dependency_changed(tmp_path, monkeypatch) -> None:
+    """numba sees a change to the fused kernels' own file only: a digest of the files whose
+    functions they call decides whether the cached machine code is still theirs."""
+    from acquisition.reduction import binning_kernels
+
+    monkeypatch.setattr(binning_kernels, "_HERE", tmp_path / "binning_kernels.py")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    code = cache / "binning_kernels.iso_frame-70.py311.1.nbc"
+    other = cache / "kernels.iso_flat_index-9.py311.nbi"
+    for f in (code, other):
+        f.write_bytes(b"machine code")
+    binning_kernels._drop_stale_cache()  # no digest yet: compiled from unknown sources
+    assert not code.exists() and other.exists()
+    code.write_bytes(b"machine code")
+    binning_kernels._drop_stale_cache()  # same sources: kept
+    assert code.exists()
+    (cache / "binning_kernels.deps").write_text("another digest")
+    binning_kernels._drop_stale_cache()
+    assert not code.exists()

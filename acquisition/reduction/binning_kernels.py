@@ -11,24 +11,51 @@ own conversion and scatter (:mod:`acquisition.tables.exact_kernels`). Every valu
 by the same IEEE operations in the same order as the reference path, so the tables hold the
 same integers and drop tallies (tests/test_fused_binning.py compares them).
 
-Numba's cache is invalidated by a change to a function's own file only: these kernels call
-compiled functions of other files, so after editing ``tables/kernels.py``,
-``tables/exact_kernels.py`` or ``pose_kernels.py`` clear ``__pycache__/binning_kernels*``
-(the identity test then checks the result).
+Numba's cache is invalidated by a change to a function's own file only, and these kernels
+call compiled functions of other files: so on import, when the sources of those files
+(:data:`DEPENDENCIES`) differ from those the cached code was compiled with, this module's
+cached code is deleted first (:func:`_drop_stale_cache`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
 
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: libm only
+
+_HERE = Path(__file__).resolve()
+DEPENDENCIES = (_HERE.parent / "pose_kernels.py", _HERE.parents[1] / "tables" / "kernels.py",
+                _HERE.parents[1] / "tables" / "exact_kernels.py")
+"""The files whose compiled functions these kernels call."""
+
+
+def _drop_stale_cache() -> None:
+    """Delete this module's cached machine code when a dependency's source changed since it
+    was compiled (a digest of their sources is kept beside the cache)."""
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in DEPENDENCIES)).hexdigest()
+    cache = _HERE.parent / "__pycache__"
+    stamp = cache / f"{_HERE.stem}.deps"
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for old in cache.glob(f"{_HERE.stem}.*.nb[ic]"):
+            old.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:  # a read-only install: numba caches elsewhere (or not at all)
+        pass
+
+
+_drop_stale_cache()
 
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction.pose_kernels import pose  # noqa: E402
 from acquisition.tables.exact_kernels import BLOCK, _convert, _room, _scatter, add_block  # noqa: E402
-from acquisition.tables.kernels import _iso_flat, _merl_flat_vectors  # noqa: E402
+from acquisition.tables.kernels import _iso_flat, _merl_flat_vectors, _mod360  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 DROP_NAN = -2
@@ -100,10 +127,10 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
             bv[nv] = b
             nv += 1
             if fold:
-                d = dp % 360.0
+                d = _mod360(dp)
                 d = 360.0 - d if d > 180.0 else d
             else:
-                d = first + (dp - first) % 360.0
+                d = first + _mod360(dp - first)
             if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
                 bb[nb] = b
                 nb += 1

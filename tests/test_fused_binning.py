@@ -67,10 +67,14 @@ def _same(a: tuple[IsotropicTable, MerlTable], b: tuple[IsotropicTable, MerlTabl
 def test_fused_tables_equal_reference_bit_for_bit(fold: bool, variance: bool, rel: bool) -> None:
     rng = np.random.default_rng(15)
     frames = [_frame(rng, variance=variance, rel=rel) for _ in range(3)]
-    ref, fused = _tables(fold), _tables(fold)
+    ref, fused, one = _tables(fold), _tables(fold), _tables(fold)
     bin_frames(frames, *ref, None, 0, fused=False)
     bin_frames(frames, *fused, None, 0)
+    bin_frames(frames, *one, None, 0, threads=False)
     _same(ref, fused)
+    _same(ref, one)
+    for name in ("count", "mean", "variance", "std_error", "mean_angles", "angle_covariance"):
+        np.testing.assert_array_equal(getattr(fused[0], name), getattr(ref[0], name))
     assert fused[0].n_dropped_nan > 0 and fused[0].n_dropped_range > 0
     assert fused[1].n_dropped_nan > 0 and fused[1].n_dropped_range > 0
     assert int(fused[0].count.sum()) > 0 and ref[0].mean_angles.shape[:3] == ref[0].shape

@@ -21,8 +21,22 @@ from acquisition.tables.exact import ExactSums
 from acquisition.tables.fixedpoint import VALUE_LIMIT
 from acquisition.tables.uncertainty import ANGLE_LIMIT
 
+HELPER_SHARE = 0.3
+"""Share of the isotropic table's samples the helper thread bins after the MERL table (which
+costs about half as much per sample): the two threads then finish about together."""
 BUDGET_TERMS = ("noise", "white_reference")
 """The budget the fused kernel sums: the image reduction's independent and correlated term."""
+
+
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def helper_pool() -> ThreadPoolExecutor:
+    """The process's one helper thread for :func:`bin_frame` (created on first use; the
+    kernels release the GIL, and each thread adds into tables of its own)."""
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(1, thread_name_prefix="gonio-binning"))
+    return _POOL[0]
 
 
 def fits(table: IsotropicTable, merl: MerlTable) -> bool:
@@ -95,7 +109,22 @@ def bin_frame(wi: np.ndarray, wo: np.ndarray, brdf: np.ndarray, variance: np.nda
         _bin_merl(merl, wi, wo, rgb)
         _bin_isotropic(table, wi, wo, rgb, variance, rel)
         return True
-    merl_done = pool.submit(_bin_merl, merl, wi, wo, rgb)
-    _bin_isotropic(table, wi, wo, rgb, variance, rel)
-    merl_done.result()
+    split = int(wi.shape[0] * (1.0 - HELPER_SHARE))
+    var = None if variance is None else variance[split:]
+    helper = pool.submit(_merl_then_part, table, merl, wi, wo, rgb, var, rel, split)
+    _bin_isotropic(table, wi[:split], wo[:split], rgb[:split],
+                   None if variance is None else variance[:split], rel)
+    table.merge_partial(helper.result().partial())  # exact sums: any split, the same table
     return True
+
+
+def _merl_then_part(table: IsotropicTable, merl: MerlTable, wi: np.ndarray, wo: np.ndarray,
+                    rgb: np.ndarray, variance: np.ndarray | None, rel: np.ndarray,
+                    split: int) -> IsotropicTable:
+    """The helper thread's share: the MERL table, then samples ``split …`` into a new
+    isotropic table like ``table``."""
+    _bin_merl(merl, wi, wo, rgb)
+    part = table._empty_like()
+    part.track_uncertainty(*(dict(terms) for terms in table._budget_terms()))
+    _bin_isotropic(part, wi[split:], wo[split:], rgb[split:], variance, rel)
+    return part

@@ -6,8 +6,8 @@ The range checks run first, as in the reference: a sample value with |f| ≥ 2^2
 before either table changes. The budget's check is a bound (largest variance, largest |f|
 times largest relative u, and the Δφ edges for the angles): when the bound reaches the exact
 sums' range the frame goes through the reference path, which raises exactly as before or adds
-it. Tables that do not match the fused kernel (numpy backend, other budget terms, no budget)
-go through the reference path too.
+it. Tables that do not match the fused kernel (numpy backend, other budget terms) go through
+the reference path too.
 """
 
 from __future__ import annotations
@@ -43,8 +43,8 @@ def fits(table: IsotropicTable, merl: MerlTable) -> bool:
     """True when the fused kernels bin into these tables (numba backend, the image
     reduction's budget, Δφ normalised within the budget's angle range)."""
     unc = table._unc
-    return (table.backend == merl.backend == "numba" and unc is not None
-            and unc._summed == BUDGET_TERMS and unc._sums.n_sums == 15
+    return (table.backend == merl.backend == "numba"
+            and (unc is None or (unc._summed == BUDGET_TERMS and unc._sums.n_sums == 15))
             and abs(float(table.delta_phi_edges[0])) + 360.0 < ANGLE_LIMIT)
 
 
@@ -75,12 +75,14 @@ def _bin_isotropic(table: IsotropicTable, wi: np.ndarray, wo: np.ndarray, rgb: n
                    variance: np.ndarray | None, rel: np.ndarray) -> None:
     from acquisition.reduction import binning_kernels
 
-    acc, budget = table._acc, table._unc._sums  # type: ignore[union-attr]
+    acc = table._acc
+    tracked = table._unc is not None
+    budget = table._unc._sums if tracked else ExactSums(1, 15)  # type: ignore[union-attr]
     table._stored = None
     table._stored_scatter = None
     var = np.zeros((1, 3)) if variance is None else np.ascontiguousarray(variance, np.float64)
     tally, btally = np.zeros(4, np.int64), np.zeros(4, np.int64)
-    args = (wi, wo, rgb, var, rel, variance is not None, table.theta_i_edges,
+    args = (wi, wo, rgb, var, rel, tracked and variance is not None, table.theta_i_edges,
             table.theta_r_edges, table.delta_phi_edges, bool(table.fold_delta_phi))
     store: ExactSums = acc._sums
     store.run_paired_kernel(budget, binning_kernels.iso_frame, args, wi.shape[0], tally, btally)
@@ -101,7 +103,7 @@ def bin_frame(wi: np.ndarray, wo: np.ndarray, brdf: np.ndarray, variance: np.nda
     if not fits(table, merl):
         return False
     merl._acc.check_values(rgb)  # |f| ≥ 2^20 sr⁻¹: raises before either table changes
-    if not budget_in_range(rgb, variance, rel):
+    if table.tracks_uncertainty and not budget_in_range(rgb, variance, rel):
         return False
     wi = np.ascontiguousarray(wi, np.float64).reshape(-1, 3)
     wo = np.ascontiguousarray(wo, np.float64).reshape(-1, 3)
@@ -125,6 +127,7 @@ def _merl_then_part(table: IsotropicTable, merl: MerlTable, wi: np.ndarray, wo: 
     isotropic table like ``table``."""
     _bin_merl(merl, wi, wo, rgb)
     part = table._empty_like()
-    part.track_uncertainty(*(dict(terms) for terms in table._budget_terms()))
+    if table.tracks_uncertainty:
+        part.track_uncertainty(*(dict(terms) for terms in table._budget_terms()))
     _bin_isotropic(part, wi[split:], wo[split:], rgb[split:], variance, rel)
     return part

@@ -84,6 +84,16 @@ def test_fused_tables_equal_reference_bit_for_bit(fold: bool, variance: bool, re
     assert int(fused[0].count.sum()) > 0 and ref[0].mean_angles.shape[:3] == ref[0].shape
 
 
+def test_empty_frame_changes_nothing() -> None:
+    empty = FrameSamples(0, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+                         np.zeros((0, 3)), np.array([0.01, 0.02, 0.03]))
+    ref, fused = _tables(True), _tables(True)
+    assert bin_frames([empty], *fused, None, 0) == bin_frames([empty], *ref, None, 0,
+                                                             fused=False) == (0, 1)
+    _same(ref, fused)
+    assert fused[0].n_samples == fused[1].n_samples == 0
+
+
 def test_fused_in_two_threads_equals_one() -> None:
     rng = np.random.default_rng(16)
     fs = _frame(rng, n=20000)

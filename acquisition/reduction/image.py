@@ -70,6 +70,7 @@ from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.fixedorder import weighted_variance
+from acquisition.reduction.fusedbinning import bin_frame, helper_pool
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import (
     PixelGeometry,
@@ -485,25 +486,37 @@ def frame_angular(angular: ImageAngular, fs: FrameSamples) -> dict[str, np.ndarr
 
 
 def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: MerlTable,
-               progress: Callable[[int, int], None] | None, total: int) -> tuple[int, int]:
+               progress: Callable[[int, int], None] | None, total: int, *,
+               fused: bool = True, threads: bool = True) -> tuple[int, int]:
     """Bin each frame's per-pixel samples into both tables, one frame at a time (memory does
-    not grow with the session); returns (samples, frames) binned."""
+    not grow with the session); returns (samples, frames) binned. ``fused``: through the
+    fused kernels (:mod:`acquisition.reduction.fusedbinning`) where they apply, the MERL
+    table and part of the isotropic one in a helper thread (``threads``), else (and as their
+    reference) through the tables' own ``add`` methods: the same tables bit for bit."""
     samples = count = 0
+    pool = helper_pool() if threads else None
     for fs in frames:
-        merl.add_vectors(fs.wi, fs.wo, fs.brdf)
-        angles = sample_poses(fs.wi, fs.wo)  # libm's atan2: the same bits on every CPU
-        budget = {}
-        if table.tracks_uncertainty:
-            nan = np.full(fs.brdf.shape, np.nan)
-            rel = np.full(3, np.nan) if fs.calibration_rel is None else fs.calibration_rel
-            budget = {"variances": {"noise": nan if fs.variance is None else fs.variance},
-                      "uncertainties": {"white_reference": np.abs(fs.brdf) * rel}}
-        table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf, **budget)
+        if not (fused and bin_frame(fs.wi, fs.wo, fs.brdf, fs.variance, fs.calibration_rel,
+                                    table, merl, pool)):
+            _bin_reference(fs, table, merl)
         samples += fs.count
         count += 1
         if progress:
             progress(count, total)
     return samples, count
+
+
+def _bin_reference(fs: FrameSamples, table: IsotropicTable, merl: MerlTable) -> None:
+    """One frame into both tables through their ``add`` methods (the reference path)."""
+    merl.add_vectors(fs.wi, fs.wo, fs.brdf)
+    angles = sample_poses(fs.wi, fs.wo)  # libm's atan2: the same bits on every CPU
+    budget = {}
+    if table.tracks_uncertainty:
+        nan = np.full(fs.brdf.shape, np.nan)
+        rel = np.full(3, np.nan) if fs.calibration_rel is None else fs.calibration_rel
+        budget = {"variances": {"noise": nan if fs.variance is None else fs.variance},
+                  "uncertainties": {"white_reference": np.abs(fs.brdf) * rel}}
+    table.add(angles[:, 0], angles[:, 1], angles[:, 2], fs.brdf, **budget)
 
 
 def reduce_image_session(

@@ -39,14 +39,19 @@ def _wrap_deg(angle):  # pragma: no cover - compiled
     return 180.0 if w == -180.0 else w
 
 
+@njit(inline="always", **_JIT)
+def pose(lx, ly, lz, cx, cy, cz):  # pragma: no cover - compiled
+    """(θi, θr, Δφ) in degrees of one light/camera pair (module docstring)."""
+    ti = math.atan2(math.sqrt(lx * lx + ly * ly), lz) * RAD_TO_DEG
+    tr = math.atan2(math.sqrt(cx * cx + cy * cy), cz) * RAD_TO_DEG
+    return ti, tr, _wrap_deg(math.atan2(cy, cx) * RAD_TO_DEG - math.atan2(ly, lx) * RAD_TO_DEG)
+
+
 @njit(**_JIT)
 def _poses(light, camera, out):  # pragma: no cover - compiled
     for k in range(light.shape[0]):
-        lx, ly, lz = light[k, 0], light[k, 1], light[k, 2]
-        cx, cy, cz = camera[k, 0], camera[k, 1], camera[k, 2]
-        out[k, 0] = math.atan2(math.sqrt(lx * lx + ly * ly), lz) * RAD_TO_DEG
-        out[k, 1] = math.atan2(math.sqrt(cx * cx + cy * cy), cz) * RAD_TO_DEG
-        out[k, 2] = _wrap_deg(math.atan2(cy, cx) * RAD_TO_DEG - math.atan2(ly, lx) * RAD_TO_DEG)
+        out[k, 0], out[k, 1], out[k, 2] = pose(light[k, 0], light[k, 1], light[k, 2],
+                                               camera[k, 0], camera[k, 1], camera[k, 2])
 
 
 def sample_poses(light: np.ndarray, camera: np.ndarray) -> np.ndarray:

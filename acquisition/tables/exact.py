@@ -56,6 +56,13 @@ def largest_finite(values: np.ndarray, backend: str) -> float:
     return max_finite_abs(values)
 
 
+def _raise_if_overflow(*tallies: np.ndarray) -> None:
+    """Raise when a kernel counted an overflowed sum (``tally[3]``)."""
+    if any(t[3] for t in tallies):
+        raise OutOfRangeError("a bin's exact sum overflowed (|Σ| ≥ 2.3e18): split the data "
+                              "into several tables")
+
+
 @dataclass(frozen=True)
 class SparseSums:
     """Canonical exact sums over ``n_bins`` bins: ``bins`` (m,) increasing, ``count`` (m,)
@@ -166,9 +173,26 @@ class ExactSums:
             if start >= n:
                 break
             self.grow(min(n - start, ROWS_PER_PASS))
-        if tally[3]:
-            raise OutOfRangeError("a bin's exact sum overflowed (|Σ| ≥ 2.3e18): split the data "
-                                  "into several tables")
+        _raise_if_overflow(tally)
+
+    def run_paired_kernel(self, other: ExactSums, kernel: Callable[..., Any],
+                          args: tuple[Any, ...], n: int, tally: np.ndarray,
+                          other_tally: np.ndarray) -> None:
+        """:meth:`run_kernel` of a kernel that adds into this store and ``other`` at once:
+        ``kernel(*args, <this store's arrays>, tally, <other's arrays>, other_tally, start)``;
+        both grow whenever it stops for room."""
+        self._touch()
+        other._touch()
+        start = 0
+        while True:
+            start = int(kernel(*args, self.slot, self.rows, self.count, self.limbs, self.used,
+                               tally, other.slot, other.rows, other.count, other.limbs,
+                               other.used, other_tally, start))
+            if start >= n:
+                break
+            for store in (self, other):
+                store.grow(min(n - start, ROWS_PER_PASS))
+        _raise_if_overflow(tally, other_tally)
 
     def add_values(self, idx: np.ndarray, values: np.ndarray, what: str = "value",
                    unit: str = "", checked: bool = False) -> int:

@@ -225,20 +225,34 @@ def merl_flat_index_deg(th, td, pd, out):  # pragma: no cover - compiled
 # ---------------------------------------------------------------------------- isotropic
 @njit(**_JIT)
 def _axis_index(v, edges):  # pragma: no cover - compiled
-    """Bin of ``v`` in [e_k, e_k+1), the last bin closed; −1 outside (and for NaN)."""
+    """Bin of ``v`` in [e_k, e_k+1), the last bin closed; −1 outside (and for NaN).
+
+    The k with e_k ≤ v < e_k+1 (``searchsorted(side="right") − 1``) is unique for strictly
+    increasing edges: it is found from a guess (exact for evenly spaced edges) by comparing
+    with the edges themselves, so the guess's rounding never changes the bin."""
     n = edges.size - 1
     if v == edges[n]:
         return n - 1
-    lo = 0
-    hi = edges.size
-    while lo < hi:  # searchsorted(side="right")
-        mid = (lo + hi) >> 1
-        if edges[mid] <= v:
-            lo = mid + 1
-        else:
-            hi = mid
-    k = lo - 1
-    return k if 0 <= k < n else -1
+    if not (v >= edges[0] and v < edges[n]):  # NaN too
+        return -1
+    k = int((v - edges[0]) / (edges[n] - edges[0]) * n)
+    k = min(max(k, 0), n - 1)
+    while edges[k] > v:
+        k -= 1
+    while edges[k + 1] <= v:
+        k += 1
+    return k
+
+
+@njit(inline="always", **_JIT)
+def _mod360(x):  # pragma: no cover - compiled
+    """``x % 360.0`` (numpy's ``np.mod``: fmod, then + 360 when the signs differ, a zero
+    +0), without the fmod call for |x| < 360, where fmod(x, 360) is x itself."""
+    if not (-360.0 < x < 360.0):
+        return x % 360.0
+    if x == 0.0:
+        return 0.0
+    return x + 360.0 if x < 0.0 else x
 
 
 @njit(**_JIT)
@@ -248,11 +262,11 @@ def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compil
     if math.isnan(ti) or math.isnan(tr) or math.isnan(dp):
         return DROP_NAN
     if fold:
-        d = dp % 360.0
+        d = _mod360(dp)
         if d > 180.0:
             d = 360.0 - d
     else:
-        d = start + (dp - start) % 360.0
+        d = start + _mod360(dp - start)
     ii = _axis_index(ti, ei)
     ir = _axis_index(tr, er)
     ip = _axis_index(d, ep)

@@ -1,0 +1,141 @@
+"""Fused per-pixel binning: a frame's samples into the MERL table and into the isotropic table
+with its uncertainty budget, one compiled pass per table, no per-sample arrays in between.
+
+The reference path (:func:`acquisition.reduction.image.bin_frames` through the tables' own
+``add`` methods) makes ~10 passes over a frame: MERL indices, values; poses, isotropic
+indices, Δφ folded, the budget's terms joined into one array, range checks, value and budget
+sums. Here each sample is read once: its pose (:func:`pose_kernels.pose`, libm's atan2), its
+bins (:func:`acquisition.tables.kernels._iso_flat`, ``_merl_flat_vectors``), and its value,
+value², budget terms, angles and angle products go block by block through the exact sums'
+own conversion and scatter (:mod:`acquisition.tables.exact_kernels`). Every value is computed
+by the same IEEE operations in the same order as the reference path, so the tables hold the
+same integers and drop tallies (tests/test_fused_binning.py compares them).
+
+Numba's cache is invalidated by a change to a function's own file only, and these kernels
+call compiled functions of other files: so on import, when the sources of those files
+(:data:`DEPENDENCIES`) differ from those the cached code was compiled with, this module's
+cached code is deleted first (:func:`_drop_stale_cache`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: libm only
+
+_HERE = Path(__file__).resolve()
+DEPENDENCIES = (_HERE.parent / "pose_kernels.py", _HERE.parents[1] / "tables" / "kernels.py",
+                _HERE.parents[1] / "tables" / "exact_kernels.py")
+"""The files whose compiled functions these kernels call."""
+
+
+def _drop_stale_cache() -> None:
+    """Delete this module's cached machine code when a dependency's source changed since it
+    was compiled (a digest of their sources is kept beside the cache)."""
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in DEPENDENCIES)).hexdigest()
+    cache = _HERE.parent / "__pycache__"
+    stamp = cache / f"{_HERE.stem}.deps"
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for old in cache.glob(f"{_HERE.stem}.*.nb[ic]"):
+            old.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:  # a read-only install: numba caches elsewhere (or not at all)
+        pass
+
+
+_drop_stale_cache()
+
+import numpy as np  # noqa: E402
+from numba import njit  # noqa: E402
+
+from acquisition.reduction.pose_kernels import pose  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, _convert, _room, _scatter, add_block  # noqa: E402
+from acquisition.tables.kernels import _iso_flat, _merl_flat_vectors, _mod360  # noqa: E402
+
+_JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+DROP_NAN = -2
+BUDGET_SUMS = 15
+"""The budget's sums per sample: noise variance (3), white reference's u (3), the angles (3)
+and their products (6): :class:`acquisition.tables.uncertainty.UncertaintySums`' order."""
+
+
+@njit(**_JIT)
+def merl_frame(wi, wo, rgb, slot, rows, count, limbs, used, tally, start):  # pragma: no cover
+    """MERL index of each light/view pair and its value added block by block, from ``start``
+    (:func:`acquisition.tables.exact_kernels.add_block`); returns where it stopped for room."""
+    idx = np.empty(BLOCK, np.int64)
+    for a in range(start, wi.shape[0], BLOCK):
+        m = min(BLOCK, wi.shape[0] - a)
+        for j in range(m):
+            idx[j] = _merl_flat_vectors(wi, wo, a + j)
+        if not add_block(idx[:m], rgb, a, slot, rows, count, limbs, used, tally):
+            return a
+    return wi.shape[0]
+
+
+@njit(inline="always", **_JIT)
+def _budget_into(xb, q, var, rgb, rel, i, ti, tr, d):  # pragma: no cover - compiled
+    """Sample ``i``'s budget sums into xb[q …]; False when one is not finite."""
+    for c in range(3):
+        xb[q + c] = var[i, c]
+        xb[q + 3 + c] = abs(rgb[i, c]) * rel[c]
+    xb[q + 6], xb[q + 7], xb[q + 8] = ti, tr, d
+    xb[q + 9], xb[q + 10], xb[q + 11] = ti * ti, tr * tr, d * d
+    xb[q + 12], xb[q + 13], xb[q + 14] = ti * tr, ti * d, tr * d
+    ok = True
+    for k in range(BUDGET_SUMS):
+        ok = ok and np.isfinite(xb[q + k])
+    return ok
+
+
+@njit(**_JIT)
+def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
+              slot, rows, count, limbs, used, tally,
+              bslot, brows, bcount, blimbs, bused, btally, start):  # pragma: no cover
+    """Pose, isotropic bin, values and (``budget``) budget of each sample from ``start``,
+    into the value store (``slot`` …, drops in ``tally`` as ``add_block``) and the budget
+    store (``bslot`` …); returns where it stopped for room in either."""
+    n_bins, first = slot.size, ep[0]
+    xv, xb = np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS)
+    bv, bb = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
+    f = np.empty((3, BLOCK * BUDGET_SUMS))
+    for a in range(start, wi.shape[0], BLOCK):
+        m = min(BLOCK, wi.shape[0] - a)
+        if not (_room(m, slot, rows, used) and _room(m, bslot, brows, bused)):
+            return a
+        nv = nb = 0
+        for i in range(a, a + m):
+            ti, tr, dp = pose(wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2])
+            b = _iso_flat(ti, tr, dp, ei, er, ep, fold, first)
+            total = 0.0
+            for c in range(3):
+                total += rgb[i, c]
+            if b == DROP_NAN or not np.isfinite(total):
+                tally[1] += 1
+                continue
+            if b < 0 or b >= n_bins:
+                tally[2] += 1
+                continue
+            for c in range(3):
+                xv[6 * nv + c] = rgb[i, c]
+                xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
+            bv[nv] = b
+            nv += 1
+            if fold:
+                d = _mod360(dp)
+                d = 360.0 - d if d > 180.0 else d
+            else:
+                d = first + _mod360(dp - first)
+            if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
+                bb[nb] = b
+                nb += 1
+        _convert(xv, 6 * nv, f[0], f[1], f[2])
+        _scatter(bv, nv, f[0], f[1], f[2], slot, rows, count, limbs, used, tally)
+        _convert(xb, BUDGET_SUMS * nb, f[0], f[1], f[2])
+        _scatter(bb, nb, f[0], f[1], f[2], bslot, brows, bcount, blimbs, bused, btally)
+    return wi.shape[0]

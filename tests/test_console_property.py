@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import pytest
 from conftest import EXAMPLES
 
-TARGETS = 1000
+TARGETS = 600
 MOVING_ARM_RIGS = ("rig-sim.toml", "rig-coaxial-sim.toml", "rig-sphere-sim.toml")
 READBACK_DEG = 0.2
 """How close a finished move reads back to its target (a few encoder ticks)."""

@@ -201,6 +201,8 @@ tests for the two cores."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under ``--dist loadgroup`` a file's tests run on one worker (its module-scoped captures
+    are made once, not once per worker); the host-timed files share one worker."""
     for item in items:
-        if item.path.name in HOST_TIMED_MODULES:
-            item.add_marker(pytest.mark.xdist_group("host-timed"))
+        group = "host-timed" if item.path.name in HOST_TIMED_MODULES else item.path.name
+        item.add_marker(pytest.mark.xdist_group(group))

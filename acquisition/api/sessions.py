@@ -163,24 +163,32 @@ def run_session(
     planner = folder.planner()
     worker = None
     try:
-        with capture_lock(folder.path), open_devices(
-                rig, planner, material=material, seed=folder.info.seed, sim_faults=sim_faults,
-                prompt=prompt) as devices:
-            if reduce:
+        with capture_lock(folder.path):
+            if reduce:  # started first: it loads while the devices open
                 from acquisition.api.streaming import StreamingWorker
 
                 worker = StreamingWorker(folder)
-            if on_open:
-                on_open(folder, devices.device_time_s())
-            t0 = devices.device_time_s()
-            engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers,
-                                   planner)
-            with keeping_run_health(folder, devices):
-                counts = engine.run()
-            t1 = devices.device_time_s()
+            with open_devices(rig, planner, material=material, seed=folder.info.seed,
+                              sim_faults=sim_faults, prompt=prompt) as devices:
+                counts, t0, t1 = _run_engine(folder, devices, planner, progress, observers,
+                                             on_open)
     finally:  # the lock is released: the worker sees the capture end and finishes
         streamed = None if worker is None else worker.result()
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0, streamed)
+
+
+def _run_engine(folder: SessionFolder, devices: RigDevices, planner: Planner,
+                progress: Progress | None, observers: Sequence[Observer],
+                on_open: OnOpen | None) -> tuple[dict[str, int], float | None, float | None]:
+    """Every step not done yet, on open devices: the journal's counts, the device clock at
+    the start and the end (None on real hardware)."""
+    if on_open:
+        on_open(folder, devices.device_time_s())
+    t0 = devices.device_time_s()
+    engine = CaptureEngine(folder, devices, devices.roi_saturated, progress, observers, planner)
+    with keeping_run_health(folder, devices):
+        counts = engine.run()
+    return counts, t0, devices.device_time_s()
 
 
 @contextmanager

@@ -8,7 +8,7 @@ gives of the same frames, bit for bit. Started before or after the capture, in t
 process's host or beside it, it needs nothing from the capture but its folder.
 
 A capture with ``reduce=True`` (``gonio capture`` without ``--no-reduce``) runs
-:func:`follow_session` in a spawned worker process (:class:`StreamingWorker`): frames are
+:func:`follow_session` in a worker process (:class:`StreamingWorker`): frames are
 decoded on another core and never hold up a move (the capture's process does not even share
 its interpreter lock with the reduction). When the run stops before its end (an error,
 Ctrl-C, SIGKILL), the worker keeps its checkpoint and writes no table; the resumed capture's
@@ -22,14 +22,15 @@ capture's worker reads it.
 from __future__ import annotations
 
 import fcntl
-import multiprocessing
+import json
 import os
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from pathlib import Path
 
 from acquisition.reduction import CHECKPOINT_EVERY
@@ -179,46 +180,57 @@ def _pending(folder: SessionFolder) -> int:
 
 
 class StreamingWorker:
-    """A capture's reduction in a worker process (spawned, so it shares nothing with the
-    capture but the session folder): :func:`follow_session` of the session into its default
-    table, written only when the capture ran to its end."""
+    """A capture's reduction in a worker process of its own (a fresh interpreter, which shares
+    nothing with the capture but the session folder, and imports nothing of the capturing
+    script: a researcher's script needs no ``if __name__ == "__main__"`` guard):
+    :func:`follow_session` of the session into its default table, written only when the
+    capture ran to its end. The report comes back as one JSON line on a pipe."""
 
     def __init__(self, folder: SessionFolder, calibration: str | Path | None = None) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe(duplex=False)
-        self.proc = ctx.Process(target=_work, args=(str(folder.path), calibration, os.getpid(),
-                                                    child), name="gonio-streaming", daemon=False)
-        self.proc.start()
-        child.close()
+        read_fd, write_fd = os.pipe()
+        args = [str(folder.path), str(os.getpid()), str(write_fd),
+                "" if calibration is None else str(calibration)]
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", WORKER_CODE, *args], pass_fds=(write_fd,),
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        finally:
+            os.close(write_fd)
+        self._reports = os.fdopen(read_fd, "rb")
 
     def result(self) -> dict[str, object]:
         """Wait for the worker (it ends once the capture lock is released): its report,
         ``{"table": path or None, "frames": n, "pending": n, "resumed": n}`` or
         ``{"error": one line}``."""
-        try:
-            report: dict[str, object] = self._conn.recv()
-        except EOFError:
-            report = {}
-        self.proc.join()
-        self._conn.close()
-        if not report:
-            return {"error": f"the streaming reduction ended with exit code {self.proc.exitcode} "
-                             "and no report"}
-        return report
+        with self._reports:
+            line = self._reports.readline()  # sent once the table is written (or on exit)
+        if not line:
+            code = self.proc.wait()
+            return {"error": f"the streaming reduction ended with exit code {code} and no report"}
+        return json.loads(line)  # the worker's interpreter shuts down on its own
 
 
-def _work(session: str, calibration: str | None, parent: int, conn: Connection) -> None:
-    """The streaming worker process: follow the capture of ``parent``, send the report.
-    Ctrl-C at the terminal reaches the whole process group: the worker leaves it to the
-    capture, whose end ends the worker (its checkpoint saved)."""
+WORKER_CODE = "import sys; from acquisition.api.streaming import work; sys.exit(work(sys.argv[1:]))"
+"""What the worker's interpreter runs (``python -c``): :func:`work` with the arguments."""
+
+
+def work(argv: list[str]) -> int:
+    """The streaming worker: ``SESSION PARENT_PID REPORT_FD CALIBRATION`` (an empty
+    calibration: the session's own). Follows the capture of the parent process and writes its
+    report to the file descriptor. Ctrl-C at the terminal reaches the whole process group: the
+    worker leaves it to the capture, whose end ends the worker (its checkpoint saved)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    session, parent, fd, calibration = argv
     try:
-        res = follow_session(session, calibration=calibration, incomplete=False, parent=parent)
+        res = follow_session(session, calibration=calibration or None, incomplete=False,
+                             parent=int(parent))
         report: dict[str, object] = {"table": None if res.table is None else str(res.table),
                                      "frames": res.frames, "pending": res.pending,
                                      "resumed": res.resumed}
+        code = 0
     except GonioError as exc:
-        report = {"error": str(exc)}
+        report, code = {"error": str(exc)}, 1
     with suppress(OSError):  # the capture was killed: the checkpoint is what counts
-        conn.send(report)
-    conn.close()
+        os.write(int(fd), (json.dumps(report) + "\n").encode())
+        os.close(int(fd))
+    return code

@@ -39,7 +39,7 @@ from acquisition.reduction.point import Reduction
 from acquisition.reduction.stream import ImageStream, JournalView, PointStream, follow, open_stream
 from acquisition.session.folder import SessionFolder
 from acquisition.session.runlock import capture_running
-from acquisition.session.status import LIVE_TABLE_SUFFIX
+from acquisition.session.status import live_table_path
 from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
 from drivers.errors import GonioError, SessionError
@@ -49,14 +49,6 @@ POLL_S = 0.2
 """Host seconds between two reads of the journal while the capture runs."""
 SNAPSHOT_S = 10.0
 """Host seconds between two partial tables written while the capture runs."""
-
-
-def live_table_path(table_path: str | os.PathLike[str]) -> Path:
-    """Where a followed capture's partial table goes: ``NAME.live.h5`` beside ``NAME.h5``
-    (the frames reduced so far, rewritten every :data:`SNAPSHOT_S`, deleted with the final
-    table)."""
-    path = Path(table_path)
-    return path.with_name(path.stem + LIVE_TABLE_SUFFIX)
 
 
 class StreamingError(SessionError):

@@ -199,9 +199,9 @@ class ImageStream:
                  if f[0].step not in self.run.steps and f[0].step not in self._tried
                  and self._final(f[0].step, planned, view.final if final is None else final)]
         self._tried.update(f[0].step for f in ready)  # a frame that cannot be read: once
+        self.run.key = self.key(self._last_reference)  # what the checkpoints save
         for fs in self.reducer.samples(ready):
             bin_frames([fs], self.table, self.merl, None, 0)
-            self.run.key = self.key(self._last_reference)
             self.run.frame_done(fs.step, fs.count, frame_angular(self.angular, fs))
         return len(ready)
 

@@ -17,9 +17,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from acquisition.session.folder import JOURNAL_FILE
 from drivers.errors import SessionError
-
-JOURNAL_FILE = "journal.sqlite"
 
 
 def _journal(folder: str | os.PathLike[str]) -> Path:

@@ -26,6 +26,13 @@ DEFAULT_TABLE = "brdf.h5"
 """The session's own table (``gonio reduce``'s default output, a streaming capture's table)."""
 LIVE_TABLE_SUFFIX = ".live.h5"
 """A streaming reduction's table of the frames reduced so far: ``brdf.live.h5``."""
+
+
+def live_table_path(table_path: str | Path) -> Path:
+    """Where a followed capture's table of the frames reduced so far goes: ``NAME.live.h5``
+    beside ``NAME.h5`` (rewritten while the capture runs, deleted with the final table)."""
+    path = Path(table_path)
+    return path.with_name(path.stem + LIVE_TABLE_SUFFIX)
 PLANNED_STEPS_META = "planned_steps"
 """Journal meta of a session whose steps are journaled as they are reached (a light stage):
 how many journal steps its whole sequence has."""
@@ -196,6 +203,6 @@ def session_status(path: str | Path, *, drift: bool = True, verify: bool = True
         sum(1 for r in records if r.attempts > 1),
         [e for e in all_events if e[1] in ("warning", "error")], drift_pct, link, bad,
         capture_running(folder.path),
-        [n for n in (DEFAULT_TABLE, DEFAULT_TABLE.removesuffix(".h5") + LIVE_TABLE_SUFFIX)
+        [n for n in (DEFAULT_TABLE, live_table_path(DEFAULT_TABLE).name)
          if (folder.path / n).is_file()],
     )

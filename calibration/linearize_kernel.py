@@ -26,52 +26,84 @@ def absent(ndim: int, dtype: type = np.float32) -> np.ndarray:
     return np.zeros((0,) * ndim, dtype=dtype)
 
 
-@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+PARALLEL_MIN_CELLS = 1 << 16
+"""Frames of fewer superpixels are linearized on one thread: waking the thread pool costs
+more than it saves on them (~15 ms per frame on a busy 2-core host for a 96 × 64 frame)."""
+
+
 def linearize_cells(mosaic: np.ndarray, red_at: tuple[int, int], black: np.ndarray,
                     threshold: np.ndarray, dark: np.ndarray, flat_px: np.ndarray,
                     flat_sp: np.ndarray, bad_px: np.ndarray, bad_sp: np.ndarray,
                     gain: np.ndarray, read: np.ndarray, scale: float,
                     rgb: np.ndarray, valid: np.ndarray, variance: np.ndarray) -> None:
     """Fill ``rgb`` (h, w, 3), ``valid`` (h, w) and, when ``gain`` (e⁻/DN per colour) has 3
-    entries, ``variance``. ``black`` and ``threshold``: (2, 2) DN per CFA position."""
-    h, w = valid.shape
+    entries, ``variance``. ``black`` and ``threshold``: (2, 2) DN per CFA position. Rows
+    go to numba's thread pool on frames of :data:`PARALLEL_MIN_CELLS` superpixels or more."""
+    kernel = _cells_parallel if valid.size >= PARALLEL_MIN_CELLS else _cells_serial
+    kernel(mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp, gain,
+           read, scale, rgb, valid, variance)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _cells_parallel(mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp,
+                    gain, read, scale, rgb, valid, variance):  # pragma: no cover - compiled
+    """:func:`linearize_cells`, its rows on numba's thread pool."""
+    for y in numba.prange(valid.shape[0]):
+        _cell_row(y, mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp,
+                  gain, read, scale, rgb, valid, variance)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _cells_serial(mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp,
+                  gain, read, scale, rgb, valid, variance):  # pragma: no cover - compiled
+    """:func:`linearize_cells` on the calling thread."""
+    for y in range(valid.shape[0]):
+        _cell_row(y, mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp,
+                  gain, read, scale, rgb, valid, variance)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _cell_row(y, mosaic, red_at, black, threshold, dark, flat_px, flat_sp, bad_px, bad_sp,
+              gain, read, scale, rgb, valid, variance):  # pragma: no cover - compiled
+    """Row ``y`` of superpixels."""
+    w = valid.shape[1]
     noise = gain.shape[0] == 3
     use_dark, use_flat_px = dark.shape[0] > 0, flat_px.shape[0] > 0
     use_flat_sp, use_bad_px, use_bad_sp = flat_sp.shape[0] > 0, bad_px.shape[0] > 0, bad_sp.shape[0] > 0
     ri, rj = red_at
     bi, bj = 1 - ri, 1 - rj
-    ig = 1.0 / gain if noise else np.zeros(3)
-    rd2 = read * read if noise else np.zeros(3)
-    factor = np.array([scale, 0.5 * scale, scale])
-    for y in numba.prange(h):
-        rr, br = 2 * y + ri, 2 * y + bi  # the red pixel's row, the blue pixel's row
-        for x in range(w):
-            rc, bc = 2 * x + rj, 2 * x + bj
-            bad = use_bad_sp and bad_sp[y, x]
-            red, v_red, bad = _cell_pixel(mosaic, rr, rc, threshold[ri, rj], black[ri, rj],
-                                          dark, flat_px, bad_px, use_dark, use_flat_px,
-                                          use_bad_px, ig[0], rd2[0], bad)
-            g1, v_g1, bad = _cell_pixel(mosaic, rr, bc, threshold[ri, bj], black[ri, bj],
+    ig0, ig1, ig2 = (1.0 / gain[0], 1.0 / gain[1], 1.0 / gain[2]) if noise else (0.0, 0.0, 0.0)
+    rd0, rd1, rd2 = ((read[0] * read[0], read[1] * read[1], read[2] * read[2]) if noise
+                     else (0.0, 0.0, 0.0))
+    f_rb, f_g = scale, 0.5 * scale
+    rr, br = 2 * y + ri, 2 * y + bi  # the red pixel's row, the blue pixel's row
+    for x in range(w):
+        rc, bc = 2 * x + rj, 2 * x + bj
+        bad = use_bad_sp and bad_sp[y, x]
+        red, v_red, bad = _cell_pixel(mosaic, rr, rc, threshold[ri, rj], black[ri, rj],
+                                      dark, flat_px, bad_px, use_dark, use_flat_px,
+                                      use_bad_px, ig0, rd0, bad)
+        g1, v_g1, bad = _cell_pixel(mosaic, rr, bc, threshold[ri, bj], black[ri, bj],
+                                    dark, flat_px, bad_px, use_dark, use_flat_px,
+                                    use_bad_px, ig1, rd1, bad)
+        g2, v_g2, bad = _cell_pixel(mosaic, br, rc, threshold[bi, rj], black[bi, rj],
+                                    dark, flat_px, bad_px, use_dark, use_flat_px,
+                                    use_bad_px, ig1, rd1, bad)
+        blue, v_blue, bad = _cell_pixel(mosaic, br, bc, threshold[bi, bj], black[bi, bj],
                                         dark, flat_px, bad_px, use_dark, use_flat_px,
-                                        use_bad_px, ig[1], rd2[1], bad)
-            g2, v_g2, bad = _cell_pixel(mosaic, br, rc, threshold[bi, rj], black[bi, rj],
-                                        dark, flat_px, bad_px, use_dark, use_flat_px,
-                                        use_bad_px, ig[1], rd2[1], bad)
-            blue, v_blue, bad = _cell_pixel(mosaic, br, bc, threshold[bi, bj], black[bi, bj],
-                                            dark, flat_px, bad_px, use_dark, use_flat_px,
-                                            use_bad_px, ig[2], rd2[2], bad)
-            bad = _store(rgb, variance, flat_sp, y, x, 0, red, v_red, factor[0], noise,
-                         use_flat_sp, bad)
-            bad = _store(rgb, variance, flat_sp, y, x, 1, g1 + g2, v_g1 + v_g2, factor[1],
-                         noise, use_flat_sp, bad)
-            bad = _store(rgb, variance, flat_sp, y, x, 2, blue, v_blue, factor[2], noise,
-                         use_flat_sp, bad)
-            valid[y, x] = not bad
-            if bad:
-                for k in range(3):
-                    rgb[y, x, k] = math.nan
-                    if noise:
-                        variance[y, x, k] = math.nan
+                                        use_bad_px, ig2, rd2, bad)
+        bad = _store(rgb, variance, flat_sp, y, x, 0, red, v_red, f_rb, noise,
+                     use_flat_sp, bad)
+        bad = _store(rgb, variance, flat_sp, y, x, 1, g1 + g2, v_g1 + v_g2, f_g,
+                     noise, use_flat_sp, bad)
+        bad = _store(rgb, variance, flat_sp, y, x, 2, blue, v_blue, f_rb, noise,
+                     use_flat_sp, bad)
+        valid[y, x] = not bad
+        if bad:
+            for k in range(3):
+                rgb[y, x, k] = math.nan
+                if noise:
+                    variance[y, x, k] = math.nan
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")

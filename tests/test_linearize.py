@@ -64,8 +64,7 @@ def test_matches_reference_through_dng(tmp_path, pattern):
     rows=st.integers(1, 300), cols=st.integers(1, 40), pattern=st.sampled_from(CFA_PATTERNS),
     seed=st.integers(0, 2**32 - 1),
 )
-def test_chunked_and_threaded_paths_match_reference(rows, cols, pattern, seed):
-    # Up to 600 rows: more than two 128-row blocks, so the threaded path runs too.
+def test_odd_sizes_and_every_layout_match_reference(rows, cols, pattern, seed):
     rng = np.random.default_rng(seed)
     mosaic = rng.integers(0, 1024, (2 * rows + 1, 2 * cols + 1), dtype=np.uint16)  # odd: cropped
     image = linearize(_frame(mosaic, pattern, black=16, white=1000, t=2.0))
@@ -73,6 +72,31 @@ def test_chunked_and_threaded_paths_match_reference(rows, cols, pattern, seed):
     assert image.rgb.shape == (rows, cols, 3)
     assert np.array_equal(image.valid, ref_valid)
     np.testing.assert_allclose(image.rgb, ref_rgb, rtol=1e-6, equal_nan=True)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG"])
+def test_thread_pool_and_one_thread_give_the_same_bits(monkeypatch, pattern):
+    """Big frames go to numba's thread pool, small ones stay on one thread: both give the same
+    bits, every optional input in use (dark, per-pixel flat, bad pixels, noise model)."""
+    from calibration import linearize_kernel
+
+    rng = np.random.default_rng(7)
+    mosaic = rng.integers(0, 4096, (240, 322), dtype=np.uint16)
+    dark = rng.uniform(50, 70, mosaic.shape).astype(np.float32)
+    flat = rng.uniform(0.9, 1.1, mosaic.shape).astype(np.float32)
+    flat[3, 5] = 0.0
+    bad = rng.random(mosaic.shape) < 0.01
+    kwargs = {"dark": dark, "flat": flat, "bad_pixels": bad,
+              "noise": NoiseModel(gain_e_per_dn=1.5, read_noise_dn=2.0)}
+    images = []
+    for threshold in (0, 10**9):  # every frame threaded, then none
+        monkeypatch.setattr(linearize_kernel, "PARALLEL_MIN_CELLS", threshold)
+        images.append(linearize(_frame(mosaic, pattern), **kwargs))
+    threaded, serial = images
+    assert 0 < serial.valid.sum() < serial.valid.size
+    for a, b in ((threaded.rgb, serial.rgb), (threaded.variance, serial.variance),
+                 (threaded.valid, serial.valid)):
+        assert a.tobytes() == b.tobytes()
 
 
 def test_saturation_masks_whole_superpixel_near_white():

@@ -226,15 +226,17 @@ def test_follow_takes_one_session_here(tmp_path: Path, capsys: pytest.CaptureFix
 
 def test_a_script_without_a_main_guard_streams(tmp_path: Path) -> None:
     """The worker is a fresh interpreter that imports nothing of the capturing script (a
-    spawned multiprocessing child would run the script's top level again)."""
+    spawned multiprocessing child would run the script's top level again), and it has ended
+    when the capture returns."""
     script = tmp_path / "capture.py"
     script.write_text(
         "from acquisition import api\n"
         f"r = api.capture({str(EXAMPLES / 'rig-sim.toml')!r}, {str(_plan(tmp_path, POINT_PLAN))!r},"
         f" {str(tmp_path / 's')!r}, material={POINT_MATERIAL!r}, reduce=True)\n"
         "print('STREAMED', r.streamed['pending'], r.streamed['table'])\n")
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=300, cwd=tmp_path)
+    done = subprocess.run([sys.executable, "-W", "always::ResourceWarning", str(script)],
+                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
+    assert done.stderr == ""  # e.g. no "subprocess … is still running": the worker was reaped
     assert done.stdout.count("STREAMED") == 1 and "STREAMED 0 " in done.stdout
     assert (tmp_path / "s" / "brdf.h5").is_file()

@@ -196,14 +196,16 @@ class StreamingWorker:
         ``{"error": one line}``."""
         with self._reports:
             line = self._reports.readline()  # sent once the table is written (or on exit)
+        code = self.proc.wait()  # quick: the worker leaves with os._exit once it reported
         if not line:
-            code = self.proc.wait()
             return {"error": f"the streaming reduction ended with exit code {code} and no report"}
-        return json.loads(line)  # the worker's interpreter shuts down on its own
+        return json.loads(line)
 
 
-WORKER_CODE = "import sys; from acquisition.api.streaming import work; sys.exit(work(sys.argv[1:]))"
-"""What the worker's interpreter runs (``python -c``): :func:`work` with the arguments."""
+WORKER_CODE = "import os, sys; from acquisition.api.streaming import work; os._exit(work(sys.argv[1:]))"
+"""What the worker's interpreter runs (``python -c``): :func:`work` with the arguments, then
+an immediate exit: its table and checkpoint are closed by then, and an interpreter's teardown
+(numba, LLVM, h5py) would only delay the capture that waits for it."""
 
 
 def work(argv: list[str]) -> int:

@@ -99,7 +99,11 @@ def _pixel_dn(mu: float, stream: np.uint64, full_well_e: float, inv_gain: float,
     return min(max(math.floor(dn + 0.5), 0.0), adc_max)
 
 
-@numba.njit(parallel=True, cache=True, nogil=True)
+PARALLEL_MIN_PIXELS = 1 << 18
+"""Mosaics of fewer pixels are exposed on one thread: waking numba's thread pool costs more
+than it saves on them (the example rigs' 192 × 128 frames)."""
+
+
 def expose_mosaic(radiance: np.ndarray, response: np.ndarray, key: np.uint64,
                   active: tuple[int, int], dark_e_per_s: float, exposure_s: float,
                   full_well_e: float, gain_e_per_dn: float, sigma_dn: float,
@@ -109,20 +113,47 @@ def expose_mosaic(radiance: np.ndarray, response: np.ndarray, key: np.uint64,
     ``radiance`` is (H/2, W/2, 3) W·sr⁻¹·m⁻² per superpixel of the active area, whose top-left
     pixel sits at ``active`` = (top, left) of ``out``; ``response`` (H, W) is each active
     pixel's e⁻ per (W·sr⁻¹·m⁻² · s). Pixels outside the active area collect dark current only.
+    Rows go to numba's thread pool on mosaics of :data:`PARALLEL_MIN_PIXELS` or more.
     """
-    rows, cols = out.shape
+    kernel = _expose_parallel if out.size >= PARALLEL_MIN_PIXELS else _expose_serial
+    kernel(radiance, response, key, active, dark_e_per_s, exposure_s, full_well_e,
+           gain_e_per_dn, sigma_dn, black_dn, adc_max, out)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _expose_parallel(radiance, response, key, active, dark_e_per_s, exposure_s, full_well_e,
+                     gain_e_per_dn, sigma_dn, black_dn, adc_max, out):  # pragma: no cover
+    """:func:`expose_mosaic`, its rows on numba's thread pool."""
+    for r in numba.prange(out.shape[0]):
+        _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s,
+                    full_well_e, gain_e_per_dn, sigma_dn, black_dn, adc_max, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _expose_serial(radiance, response, key, active, dark_e_per_s, exposure_s, full_well_e,
+                   gain_e_per_dn, sigma_dn, black_dn, adc_max, out):  # pragma: no cover
+    """:func:`expose_mosaic` on the calling thread."""
+    for r in range(out.shape[0]):
+        _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s,
+                    full_well_e, gain_e_per_dn, sigma_dn, black_dn, adc_max, out)
+
+
+@numba.njit(cache=True, inline="always")
+def _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s, full_well_e,
+                gain_e_per_dn, sigma_dn, black_dn, adc_max, out):  # pragma: no cover
+    """Raw row ``r`` of :func:`expose_mosaic`."""
+    cols = out.shape[1]
     top, left = active
     height, width = response.shape
     cap = 4.0 * full_well_e + 1e3  # beyond the full well all clips: keeps the draws finite
     inv_gain = 1.0 / gain_e_per_dn
-    for r in numba.prange(rows):
-        ar = r - top
-        for c in range(cols):
-            ac = c - left
-            mu = dark_e_per_s
-            if 0 <= ar < height and 0 <= ac < width:
-                colour = (ar & 1) + (ac & 1)  # RGGB: R 0, G 1, B 2
-                mu += radiance[ar >> 1, ac >> 1, colour] * response[ar, ac]
-            stream = _mix(key ^ (np.uint64(r * cols + c) * _GAMMA))
-            out[r, c] = np.uint16(_pixel_dn(min(mu * exposure_s, cap), stream, full_well_e,
-                                            inv_gain, sigma_dn, black_dn, float(adc_max)))
+    ar = r - top
+    for c in range(cols):
+        ac = c - left
+        mu = dark_e_per_s
+        if 0 <= ar < height and 0 <= ac < width:
+            colour = (ar & 1) + (ac & 1)  # RGGB: R 0, G 1, B 2
+            mu += radiance[ar >> 1, ac >> 1, colour] * response[ar, ac]
+        stream = _mix(key ^ (np.uint64(r * cols + c) * _GAMMA))
+        out[r, c] = np.uint16(_pixel_dn(min(mu * exposure_s, cap), stream, full_well_e,
+                                        inv_gain, sigma_dn, black_dn, float(adc_max)))

@@ -51,9 +51,16 @@ def test_normal_limit_has_the_poisson_mean_and_variance() -> None:
     assert charge.var() == pytest.approx(mu + 1 / 12, rel=5 * np.sqrt(2 / n))
 
 
-def test_a_frame_is_the_same_on_one_thread_and_on_many() -> None:
+def test_a_frame_is_the_same_on_one_thread_and_on_many(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same bits from the one-thread kernel (small mosaics), and from the thread pool's
+    (big ones) on one thread and on all."""
+    from simulators import exposure
+
     sensor = SensorModel(width=600, height=400, prnu_sigma=0.01, optical_black_px=8)
     radiance = np.random.default_rng(0).uniform(0.0, 20.0, (*sensor.superpixel_shape, 3))
+    monkeypatch.setattr(exposure, "PARALLEL_MIN_PIXELS", 10**12)
+    serial = sensor.expose(radiance, 0.05, 200, frame_seed=5)
+    monkeypatch.setattr(exposure, "PARALLEL_MIN_PIXELS", 0)
     threads = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
@@ -61,7 +68,7 @@ def test_a_frame_is_the_same_on_one_thread_and_on_many() -> None:
     finally:
         numba.set_num_threads(threads)
     many = sensor.expose(radiance, 0.05, 200, frame_seed=5)
-    assert np.array_equal(one, many)
+    assert np.array_equal(one, many) and np.array_equal(serial, many)
     assert not np.array_equal(many, sensor.expose(radiance, 0.05, 200, frame_seed=6))
 
 

@@ -5,19 +5,21 @@ temporary folder.
 
 Three ways to reduce the same session, each twice, in the order serial, pool, Dask, Dask,
 pool, serial (a shared machine's load drifts: a linear drift cancels; compare within a run),
-each in a fresh process that has reduced one frame before the clock starts (numba's kernels
-loaded; a process that ran a Dask client has threads, after which a forked pool deadlocked):
+each in a fresh process (``bench/dask_child.py``) that has reduced one frame before the clock
+starts (numba's kernels loaded):
 
 * serial: :class:`ImageReducer` opened here, every frame into one partial, finished here;
-* Pool: opened here, a 2-process ``multiprocessing.Pool`` (fork) reducing the odd and the even
-  frames into one partial each, merged and finished here — the best a pool does (two tasks,
-  two partials shipped);
+* Pool: a 2-process ``multiprocessing.Pool`` (spawn: numba's GNU OpenMP thread pool is not
+  fork-safe), each process warmed by one frame and given its share of the cores for numba's
+  threads, as Dask's workers are, before the clock starts; then the session opened here, the
+  odd and the even frames reduced into one partial each, merged and finished here — the best
+  a pool does (two tasks, two partials shipped);
 * Dask: :func:`acquisition.reduction.distributed.reduce_on_cluster` on a 2-worker
   ``LocalCluster`` configured as ``gonio reduce --workers 2`` configures it (one thread per
-  worker) — the session opened on a worker, one task per frame, partials merged on the
-  workers, one merged partial finished here. The cluster is started, and each worker has
-  reduced one frame in a task (numba's cache loaded, as the forked pool inherits it), before
-  the clock starts.
+  worker, its share of the cores for numba's threads) — the session opened on a worker, one
+  task per frame, partials merged on the workers, one merged partial finished here. The
+  cluster is started, and each worker has reduced one frame in a task (numba's cache
+  loaded), before the clock starts.
 
 The three tables must be equal bit for bit (else the benchmark fails). (The file is not
 called ``distributed.py``: run from ``bench/``, it would shadow the ``distributed`` package.)
@@ -81,83 +83,9 @@ def _plan(folder: Path, rig: Path) -> Path:
     return module._plan(folder, rig, FRAMES)
 
 
-_CHILD = r"""
-import hashlib, json, multiprocessing, resource, sys, time, warnings
-from acquisition.reduction.image import ImageReducer
-from acquisition.tables.partial import merge_all
-
-FORK_WARNING = ("ignore", "rawpy is being used in a process created by multiprocessing",
-                RuntimeWarning)
-
-
-def digest(red):
-    h = hashlib.sha256()
-    for a in (red.table.count, red.table.mean, red.table.std_error, red.merl.count,
-              red.merl.mean, red.merl.variance):
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def children_cpu():
-    u = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return u.ru_utime + u.ru_stime
-
-
-def serial(session):
-    t, cpu = time.perf_counter(), time.process_time()
-    reducer = ImageReducer.open(session)
-    red = reducer.reduction(reducer.partial(reducer.frames))
-    return time.perf_counter() - t, time.process_time() - cpu, 0.0, red
-
-
-def pool(session):
-    t, cpu, kids = time.perf_counter(), time.process_time(), children_cpu()
-    reducer = ImageReducer.open(session)
-    with multiprocessing.get_context("fork").Pool(2, warnings.filterwarnings, FORK_WARNING) as p:
-        parts = p.map(reducer.partial, [reducer.frames[0::2], reducer.frames[1::2]])
-    red = reducer.reduction(merge_all(parts))
-    return (time.perf_counter() - t, time.process_time() - cpu + children_cpu() - kids, 0.0,
-            red)
-
-
-def workers_cpu(client):
-    return sum(u.ru_utime + u.ru_stime
-               for u in client.run(resource.getrusage, resource.RUSAGE_SELF).values())
-
-
-def on_cluster(session):
-    import dask
-    from distributed import Client, LocalCluster, wait
-    from acquisition.reduction.distributed import (
-        LOCAL_CLUSTER, LOCAL_CONFIG, image_piece, reduce_on_cluster)
-
-    with dask.config.set(LOCAL_CONFIG), LocalCluster(n_workers=2, **LOCAL_CLUSTER) as c, \
-            Client(c) as client:
-        warm = ImageReducer.open(session)
-        wait([client.submit(image_piece, warm, warm.frames[:1], workers=[w], pure=False)
-              for w in client.scheduler_info()["workers"]])
-        before = workers_cpu(client)
-        t, cpu = time.perf_counter(), time.process_time()
-        (red,) = reduce_on_cluster(client, [session])
-        wall, client_cpu = time.perf_counter() - t, time.process_time() - cpu
-        return wall, workers_cpu(client) - before, client_cpu, red
-
-
-if __name__ == "__main__":
-    how, session = sys.argv[1], sys.argv[2]
-    warm = ImageReducer.open(session)
-    warm.partial(warm.frames[:1])  # numba's kernels loaded here (a forked pool inherits them)
-    wall, cpu, client_cpu, red = {"serial": serial, "pool": pool, "dask": on_cluster}[how](session)
-    print(json.dumps({"wall_s": wall, "cpu_s": cpu, "client_cpu_s": client_cpu,
-                      "frames": red.frames, "digest": digest(red)}))
-"""
-"""One timed reduction in a fresh process (``python -c _CHILD serial|pool|dask SESSION``):
-prints its wall time, the CPU time of the processes doing the work, this process's CPU time
-besides (Dask: the client and the LocalCluster's scheduler), frames and the tables' digest."""
-
-
 def _run(how: str, session: Path) -> dict[str, float | str]:
-    out = subprocess.run([sys.executable, "-c", _CHILD, how, str(session)], capture_output=True,
+    out = subprocess.run([sys.executable, str(HERE / "dask_child.py"), how, str(session)],
+                         capture_output=True,
                          text=True, check=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 from pathlib import Path
 
@@ -90,6 +91,25 @@ def test_workers_start_a_local_cluster_with_one_bar_over_all_frames(sessions, tm
     assert_same_table(tmp_path / "t.h5", sessions["sphere-table"])
 
 
+def _numba_threads() -> int:
+    import numba
+
+    return numba.get_num_threads()
+
+
+def test_local_workers_share_the_cores_for_numbas_threads():
+    """``--workers 2``: each worker process runs numba's kernels on its share of the cores
+    (one thread per core in all), not on every core each."""
+    from acquisition.reduction.distributed import dask_client
+
+    before = os.environ.get("NUMBA_NUM_THREADS")
+    with dask_client(workers=2) as client:
+        threads = client.run(_numba_threads)
+    assert len(threads) == 2
+    assert set(threads.values()) == {max(1, (os.cpu_count() or 1) // 2)}
+    assert os.environ.get("NUMBA_NUM_THREADS") == before  # this process's is left alone
+
+
 def test_workers_of_other_versions_are_refused_before_any_work(sessions, cluster, tmp_path,
                                                                capsys):
     def old_numpy() -> None:  # runs on one worker (pickled by value: a local function)
@@ -144,19 +164,19 @@ def test_a_failure_on_a_worker_is_one_line_naming_the_session(sessions, cluster,
     line, the second named, the rest of its frames cancelled, no table."""
     def break_workers() -> None:  # runs on the workers (pickled by value: a local function)
         import acquisition.reduction.distributed as dist
-        from acquisition.reduction.image import ImageReducer
+        from acquisition.reduction.image import PartialBuilder
 
         def crash(*_args):  # noqa: ANN002, ANN202
             raise RuntimeError("binning kernel crashed")
 
-        ImageReducer.real_partial, dist.real_read_signal = ImageReducer.partial, dist.read_signal
-        ImageReducer.partial = dist.read_signal = crash
+        PartialBuilder.real_add, dist.real_read_signal = PartialBuilder.add, dist.read_signal
+        PartialBuilder.add = dist.read_signal = crash
 
     def restore() -> None:
         import acquisition.reduction.distributed as dist
-        from acquisition.reduction.image import ImageReducer
+        from acquisition.reduction.image import PartialBuilder
 
-        ImageReducer.partial, dist.read_signal = ImageReducer.real_partial, dist.real_read_signal
+        PartialBuilder.add, dist.read_signal = PartialBuilder.real_add, dist.real_read_signal
 
     cluster.run(break_workers)
     try:

@@ -13,9 +13,13 @@ How a session is reduced (:func:`reduce_on_cluster`):
   partial table (:mod:`acquisition.tables.partial`), a point frame its ROI signal (the point
   budget's angular terms need every sample before any is binned, so the client bins the
   session's few hundred samples once every signal is in);
-* an image-based session's partials are merged on the workers, :data:`MERGE_FAN_IN` at a
-  time, in frame order (a tree of futures, merges before new frames), so the client receives
-  one merged partial per session and finishes the tables from it.
+* an image-based frame is binned into its worker's running sums of the session (a
+  :class:`~acquisition.reduction.image.PartialBuilder` per worker thread, kept in the worker
+  process between tasks), so no per-frame partial is made, shipped or merged; once every
+  frame is in, each worker hands its running sums over once (:func:`take_running`, through
+  ``Client.run``), and the client merges them and finishes the tables. Every frame must be
+  in exactly one worker's sums: a frame lost with a worker that died is recomputed by Dask
+  elsewhere, and the merged frames are checked against the session's before any table.
 
 Sums are exact, so the split, the merge order and the number of workers change no bit. The
 workers' gonio, numpy and numba versions are checked against the client's before any work
@@ -33,14 +37,17 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
+import threading
+import uuid
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from acquisition.reduction.badframes import BadFramesError, FrameCheck
-from acquisition.reduction.image import ImageReducer
+from acquisition.reduction.badframes import FrameCheck
+from acquisition.reduction.image import ImageReducer, PartialBuilder
 from acquisition.reduction.point import (
     FrameSignal,
     PointReducer,
@@ -58,11 +65,8 @@ from calibration.bundle import CalibrationBundle
 from drivers.errors import GonioError
 
 INSTALL = "pip install 'gonio[distributed]'"
-MERGE_FAN_IN = 4
-"""Partials merged by one task of the tree."""
-OPEN_PRIORITY, MERGE_PRIORITY, FRAME_PRIORITY = 20, 10, 0
-"""Dask task priorities: sessions open first (the bar learns every total), merges run before
-new frames (partials do not pile up in the workers' memory)."""
+OPEN_PRIORITY, FRAME_PRIORITY = 20, 0
+"""Dask task priorities: sessions open first (the bar learns every total)."""
 CONNECT_TIMEOUT_S = 10.0
 LOCAL_CLUSTER: dict[str, Any] = {
     "processes": True, "threads_per_worker": 1, "dashboard_address": None,
@@ -87,6 +91,17 @@ LOCAL_CONFIG: dict[str, Any] = {
     "distributed.admin.system-monitor.disk": False,
 }
 """Dask configuration of the local cluster's workers."""
+
+
+def worker_threads(workers: int) -> dict[str, dict[str, str]]:
+    """``LocalCluster`` options giving each of ``workers`` local worker processes its share of
+    the cores for numba's thread pool (the linearization's): ⌊cores / workers⌋, at least 1.
+    More would put several threads per core, whose switching and OpenMP spinning cost CPU
+    time while the workers already use every core. (The nanny's ``env``, which its worker
+    sets on start; not the ``pre-spawn-environ`` configuration, which the nanny writes into
+    this process's own environment, where it then overrides later clusters' settings.)"""
+    share = max(1, (os.cpu_count() or 1) // workers)
+    return {"env": {"NUMBA_NUM_THREADS": str(share)}}
 
 
 class DistributedError(GonioError, RuntimeError):
@@ -118,7 +133,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         import dask
 
         with dask.config.set(LOCAL_CONFIG), \
-                dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER) as cluster, \
+                dist.LocalCluster(n_workers=workers, **LOCAL_CLUSTER, **worker_threads(workers)
+                                  ) as cluster, \
                 dist.Client(cluster) as client:
             check_versions(client)
             yield client
@@ -197,13 +213,30 @@ def open_session(session: Path, bundle: str | None) -> ImageReducer | PointSourc
     return PointSource(folder, find_bundle(folder, bundle), signal_frames(folder))
 
 
-def image_piece(reducer: ImageReducer, frames: list[list[StepRecord]]) -> Piece:
-    """(worker) The partial tables of image frames (normally one), undecodable ones noted."""
-    own = dataclasses.replace(reducer, check=FrameCheck(reducer.folder.path))
-    try:
-        return Piece(own.partial(frames))
-    except BadFramesError:
-        return Piece(None, tuple(own.check.bad))
+_RUNNING: dict[tuple[str, int], PartialBuilder] = {}
+"""(worker) Running sums of image frames, per (session token, worker thread)."""
+
+
+def image_frame(reducer: ImageReducer, frame: list[StepRecord], token: str) -> None:
+    """(worker) Bin an image frame into this worker thread's running sums of the session
+    ``token`` (an undecodable frame is noted there)."""
+    slot = (token, threading.get_ident())
+    builder = _RUNNING.get(slot)
+    if builder is None:
+        own = dataclasses.replace(reducer, check=FrameCheck(reducer.folder.path))
+        builder = _RUNNING[slot] = PartialBuilder(own)
+    builder.add([frame])
+
+
+def take_running(token: str) -> Piece | None:
+    """(worker, through ``Client.run``) This worker's running sums of the session ``token``,
+    removed from it: one piece (None: it binned none of its frames)."""
+    piece = None
+    for slot in sorted(k for k in _RUNNING if k[0] == token):
+        builder = _RUNNING.pop(slot)
+        own = Piece(builder.partial(), tuple(builder.reducer.check.bad))
+        piece = own if piece is None else piece.merge(own)
+    return piece
 
 
 def point_signal(source: PointSource, frame: SignalFrame) -> tuple[FrameSignal | None, str | None]:
@@ -213,8 +246,8 @@ def point_signal(source: PointSource, frame: SignalFrame) -> tuple[FrameSignal |
     return signal, (check.bad[0] if check.bad else None)
 
 
-def merge_pieces(*pieces: Piece) -> Piece:
-    """(worker) One piece of several, in the order given."""
+def merge_all_pieces(pieces: list[Piece]) -> Piece:
+    """One piece of several (frames disjoint: a frame in two raises)."""
     out = pieces[0]
     for p in pieces[1:]:
         out = out.merge(p)
@@ -229,6 +262,10 @@ class _Session:
     path: Path
     opened: Any
     """The future of :func:`open_session`."""
+    token: str = field(default_factory=lambda: uuid.uuid4().hex)
+    """Names the session's running sums on the workers (unique to this reduction)."""
+    landed: int = 0
+    """Image frames binned so far."""
     source: ImageReducer | PointSource | None = None
     """Its result, once open."""
     frames: list[Any] = field(default_factory=list)
@@ -298,6 +335,8 @@ class _ClusterRun:
             f"{s.path}: the reduction failed on a Dask worker ({type(exc).__name__}: "
             f"{_first_line(exc)})")
         self.client.cancel([f for f in (s.opened, *s.frames) if f is not None])
+        with suppress(Exception):  # the workers' running sums of it are dropped
+            self.client.run(take_running, s.token)
 
     def _open(self, s: _Session, i: int, future: Any, _at: int) -> None:
         """A session is open: its frames become tasks (and, image-based, a merge tree)."""
@@ -309,34 +348,42 @@ class _ClusterRun:
             if not s.frames:
                 self._finish_point(s, i)
             return
-        s.frames = [self._submit("frame", i, image_piece, future, [f], priority=FRAME_PRIORITY)
-                    for f in opened.frames]
-        level = s.frames or [self.client.submit(image_piece, future, [], pure=False)]
-        while True:
-            level = [self.client.submit(merge_pieces, *level[k:k + MERGE_FAN_IN],
-                                        priority=MERGE_PRIORITY, pure=False)
-                     for k in range(0, len(level), MERGE_FAN_IN)]
-            if len(level) == 1:
-                break
-        self.roles[level[0]] = ("merged", i, 0)
-        self.pending.add(level[0])
+        s.frames = [self._submit("frame", i, image_frame, future, f, s.token,
+                                 priority=FRAME_PRIORITY) for f in opened.frames]
+        if not s.frames:
+            self._finish_image(s, i)
 
     def _frame(self, s: _Session, i: int, future: Any, at: int) -> None:
-        """A frame is done: a point frame's signal is kept (image frames merge on)."""
+        """A frame is done: a point frame's signal is kept; once every image frame is binned,
+        the workers' running sums are collected."""
+        result = future.result()  # a failed task raises its error here
         if not isinstance(s.source, PointSource):
+            s.landed += 1
+            if s.landed == len(s.frames):
+                self._finish_image(s, i)
             return
-        s.signals[at] = future.result()
+        s.signals[at] = result
         if len(s.signals) == len(s.frames):
             self._finish_point(s, i)
 
-    def _merged(self, s: _Session, i: int, future: Any, _at: int) -> None:
-        """An image-based session's merged partial: its tables, finished here."""
-        piece: Piece = future.result()
+    def _finish_image(self, s: _Session, i: int) -> None:
+        """Every frame of an image-based session is binned: the workers' running sums,
+        merged here (exact sums: in any order) and checked to hold each frame once, finish
+        its tables."""
         reducer = s.source
         assert isinstance(reducer, ImageReducer)
+        _distributed().wait(s.frames)  # frames lost with a worker are binned again first
+        pieces = [p for _, p in sorted(self.client.run(take_running, s.token).items())
+                  if p is not None]
+        piece = merge_all_pieces(pieces) if pieces else Piece(None)
         if piece.bad:
             FrameCheck(reducer.folder.path, list(piece.bad)).raise_if_any()
         part = piece.partial or reducer.partial([])
+        expected = {recs[0].step for recs in reducer.frames}
+        if part.steps != expected:
+            missing = sorted(expected - part.steps)
+            raise DistributedError(f"{s.path}: {len(missing)} frame(s) were lost with a Dask "
+                                   f"worker (steps {missing[:5]}…): reduce the session again")
         self._done(s, i, reducer.reduction(part))
 
     def _finish_point(self, s: _Session, i: int) -> None:

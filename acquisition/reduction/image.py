@@ -441,20 +441,40 @@ class ImageReducer:
 
     def partial(self, frames: Iterable[list[StepRecord]]) -> ReductionPartial:
         """The partial tables of ``frames`` (rows of :attr:`frames`)."""
-        table, merl = self.new_tables()
-        angular = ImageAngular(self.rig, self.model, table)
-        steps, samples, data = set(), 0, {}
-        for fs in self.samples(frames):
-            bin_frames([fs], table, merl, None, 0)
-            steps.add(fs.step)
-            samples += fs.count
-            arrays = frame_angular(angular, fs)
-            if arrays is not None:
-                data[fs.step] = arrays
+        builder = PartialBuilder(self)
+        builder.add(frames)
         self.check.raise_if_any()
-        return ReductionPartial(self.key, frozenset(steps),
-                                {"isotropic": table.partial(), "merl": merl.partial()}, samples,
-                                data)
+        return builder.partial()
+
+
+class PartialBuilder:
+    """The partial tables of an image-based session's frames, built as frames come: frames
+    added in any order and over many calls give the partial of them all (a Dask worker's
+    running sums). Undecodable frames are noted in the reducer's ``check``."""
+
+    def __init__(self, reducer: ImageReducer) -> None:
+        self.reducer = reducer
+        self.table, self.merl = reducer.new_tables()
+        self.angular = ImageAngular(reducer.rig, reducer.model, self.table)
+        self.steps: set[int] = set()
+        self.samples = 0
+        self.data: dict[int, dict[str, np.ndarray]] = {}
+
+    def add(self, frames: Iterable[list[StepRecord]]) -> None:
+        """Bin ``frames`` (rows of :attr:`ImageReducer.frames`) into the sums."""
+        for fs in self.reducer.samples(frames):
+            bin_frames([fs], self.table, self.merl, None, 0)
+            self.steps.add(fs.step)
+            self.samples += fs.count
+            arrays = frame_angular(self.angular, fs)
+            if arrays is not None:
+                self.data[fs.step] = arrays
+
+    def partial(self) -> ReductionPartial:
+        """The frames added so far, as a partial."""
+        return ReductionPartial(self.reducer.key, frozenset(self.steps),
+                                {"isotropic": self.table.partial(), "merl": self.merl.partial()},
+                                self.samples, self.data)
 
 
 def iter_session_samples(

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.linearize_kernel import absent, linearize_cells, threads_for
+from calibration.linearize_kernel import absent, linearize_cells
 from calibration.raw import RawFrame
 from drivers.errors import CalibrationError
 
@@ -244,8 +244,7 @@ def _run_kernel(
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Check the calibration data (shapes, then the noise model's ISO), then run the compiled
-    pass (:func:`calibration.linearize_kernel.linearize_cells`, on one thread for a small
-    mosaic): rgb, valid, variance."""
+    pass (:func:`calibration.linearize_kernel.linearize_cells`): rgb, valid, variance."""
     mosaic = frame.mosaic
     hh, ww = mosaic.shape[0] // 2, mosaic.shape[1] // 2
     _check_dark(frame, dark)
@@ -261,16 +260,15 @@ def _run_kernel(
     rgb = np.empty((hh, ww, 3), np.float32)
     valid = np.empty((hh, ww), dtype=bool)
     variance = np.empty((hh, ww, 3), np.float32) if noise_arrays is not None else absent(3)
-    with threads_for(mosaic.size):
-        linearize_cells(
-            mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64),
-            dark if dark is not None else absent(2),
-            flat if flat_per_pixel else absent(2),
-            flat if flat is not None and not flat_per_pixel else absent(3),
-            bad_pixels.astype(bool, copy=False) if bad_per_pixel else absent(2, bool),
-            bad_pixels.astype(bool, copy=False) if bad_pixels is not None and not bad_per_pixel
-            else absent(2, bool),
-            gain, read, float(scale), rgb, valid, variance)
+    linearize_cells(
+        mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64),
+        dark if dark is not None else absent(2),
+        flat if flat_per_pixel else absent(2),
+        flat if flat is not None and not flat_per_pixel else absent(3),
+        bad_pixels.astype(bool, copy=False) if bad_per_pixel else absent(2, bool),
+        bad_pixels.astype(bool, copy=False) if bad_pixels is not None and not bad_per_pixel
+        else absent(2, bool),
+        gain, read, float(scale), rgb, valid, variance)
     return rgb, valid, (variance if noise_arrays is not None else None)
 
 

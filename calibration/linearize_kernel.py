@@ -11,38 +11,14 @@ of the two greens and B are scaled and divided by a per-superpixel flat; invalid
 The Bayer layout is given by the red pixel's place (``red_at``): blue is diagonal to it and
 the greens fill the other two places, so the loop is straight-line for all four layouts.
 Optional inputs are passed as arrays of the right rank with size 0 (see :func:`absent`).
-Mosaics under :data:`PARALLEL_FROM_PX` pixels run on the calling thread (:func:`threads_for`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import numba
 import numpy as np
-
-PARALLEL_FROM_PX = 1 << 18
-"""Mosaics with fewer pixels (512 × 512) are linearised on the calling thread alone: the whole
-pass takes ≈ 1 ms there, while handing rows to a second thread makes the call wait for that
-thread's time slice whenever the other core is busy (measured 2–20 ms per call on 2 cores
-under load, against 0.1 ms for a 128 × 128 frame on one thread)."""
-
-
-@contextmanager
-def threads_for(pixels: int) -> Iterator[None]:
-    """Compiled passes inside run on one thread if ``pixels`` < :data:`PARALLEL_FROM_PX`, else
-    on numba's threads (the count is the calling thread's own; restored on exit)."""
-    if pixels >= PARALLEL_FROM_PX:
-        yield
-        return
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
 
 
 def absent(ndim: int, dtype: type = np.float32) -> np.ndarray:

@@ -7,39 +7,17 @@ any number of threads. Shot noise is Poisson(μ): drawn exactly below
 :data:`EXACT_POISSON_BELOW_E` electrons (multiplication method below 10, Hörmann's transformed
 rejection PTRS above), and above it as the normal limit round(μ + √μ·z), whose skewness 1/√μ
 is under 0.032 there (mean and variance μ either way). Read noise is normal (Box–Muller).
-Frames under :data:`PARALLEL_FROM_PX` pixels are exposed on the calling thread (:func:`one_thread_if_small`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import numba
 import numpy as np
 
 EXACT_POISSON_BELOW_E = 1000.0
 """Expected charge (e⁻) under which shot noise is drawn from the exact Poisson law."""
-
-PARALLEL_FROM_PX = 1 << 16
-"""Frames with fewer pixels (256 × 256) are exposed on the calling thread: ≤ 5 ms there,
-about what a hand-off to a second thread costs when the other core is busy (the call waits
-for that thread's time slice)."""
-
-
-@contextmanager
-def one_thread_if_small(pixels: int) -> Iterator[None]:
-    """Inside, numba runs this thread's parallel loops on itself alone when ``pixels`` is
-    under :data:`PARALLEL_FROM_PX` (the thread count is per thread; put back on exit)."""
-    small, threads = pixels < PARALLEL_FROM_PX, numba.get_num_threads()
-    if small:
-        numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        if small:
-            numba.set_num_threads(threads)
 
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)  # SplitMix64's increment (2⁶⁴ / golden ratio)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import ConfigError
-from simulators.exposure import expose_mosaic, frame_key, one_thread_if_small
+from simulators.exposure import expose_mosaic, frame_key
 
 CFA_PATTERN = "RGGB"
 """Colour layout of every simulated sensor (top-left 2×2, row by row)."""
@@ -281,9 +281,8 @@ class SensorModel:
         out = np.empty(self.raw_shape, dtype=np.uint16)
         top, left, _, _ = self.active_area
         gain = self.gain_at(iso)
-        with one_thread_if_small(out.size):
-            expose_mosaic(radiance, self.response, frame_key(self.seed, frame_seed),
-                          (top, left), self.dark_current_e_per_s, exposure_s, self.full_well_e,
-                          gain, math.hypot(self.read_noise_e / gain, self.black_noise_dn),
-                          float(self.black_level_dn), self.adc_max, out)
+        expose_mosaic(radiance, self.response, frame_key(self.seed, frame_seed),
+                      (top, left), self.dark_current_e_per_s, exposure_s, self.full_well_e, gain,
+                      math.hypot(self.read_noise_e / gain, self.black_noise_dn),
+                      float(self.black_level_dn), self.adc_max, out)
         return out

@@ -5,22 +5,17 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calibration.linearize import LinearImage, NoiseModel, Roi, linearize, roi_mean
-from calibration.linearize_kernel import PARALLEL_FROM_PX, threads_for
 from calibration.raw import RawFrame, load_raw
 from drivers.errors import CalibrationError
 from simulators.camera import SimCamera
 from simulators.dng import CFA_PATTERNS, write_dng
 from simulators.sensor import SensorModel
-
-THREADS = numba.get_num_threads()
-"""numba's thread count in this process (the machine's cores unless NUMBA_NUM_THREADS)."""
 
 
 def _reference(mosaic, pattern, black, white, t, saturation=0.99):
@@ -69,8 +64,8 @@ def test_matches_reference_through_dng(tmp_path, pattern):
     rows=st.integers(1, 300), cols=st.integers(1, 40), pattern=st.sampled_from(CFA_PATTERNS),
     seed=st.integers(0, 2**32 - 1),
 )
-def test_small_frames_match_reference(rows, cols, pattern, seed):
-    # Under PARALLEL_FROM_PX pixels: the one-thread path (the threaded one: below).
+def test_chunked_and_threaded_paths_match_reference(rows, cols, pattern, seed):
+    # Up to 600 rows: more than two 128-row blocks, so the threaded path runs too.
     rng = np.random.default_rng(seed)
     mosaic = rng.integers(0, 1024, (2 * rows + 1, 2 * cols + 1), dtype=np.uint16)  # odd: cropped
     image = linearize(_frame(mosaic, pattern, black=16, white=1000, t=2.0))
@@ -78,31 +73,6 @@ def test_small_frames_match_reference(rows, cols, pattern, seed):
     assert image.rgb.shape == (rows, cols, 3)
     assert np.array_equal(image.valid, ref_valid)
     np.testing.assert_allclose(image.rgb, ref_rgb, rtol=1e-6, equal_nan=True)
-
-
-def test_a_large_frame_runs_threaded_and_matches_a_vectorised_reference():
-    """Over PARALLEL_FROM_PX pixels the pass runs on numba's threads; per cell it is the
-    plain mean of the black-subtracted colours, NaN where a pixel reaches saturation."""
-    rows, cols = 320, 450  # superpixels: 576 000 pixels
-    assert 4 * rows * cols >= PARALLEL_FROM_PX
-    with threads_for(4 * rows * cols):
-        assert numba.get_num_threads() == THREADS
-    mosaic = np.random.default_rng(7).integers(0, 1024, (2 * rows, 2 * cols), dtype=np.uint16)
-    image = linearize(_frame(mosaic, "GRBG", black=16, white=1000, t=2.0))
-    cells = (mosaic.astype(float) - 16).reshape(rows, 2, cols, 2) / 2.0
-    ref = np.stack([cells[:, 0, :, 1], (cells[:, 0, :, 0] + cells[:, 1, :, 1]) / 2,
-                    cells[:, 1, :, 0]], axis=-1)
-    valid = ~np.any(cells * 2.0 >= 0.99 * (1000 - 16), axis=(1, 3))
-    assert 0 < valid.sum() < valid.size
-    assert np.array_equal(image.valid, valid)
-    np.testing.assert_allclose(image.rgb[valid], ref[valid], rtol=1e-6)
-    assert np.isnan(image.rgb[~valid]).all()
-
-
-def test_a_small_frame_runs_on_the_calling_thread_only():
-    with threads_for(PARALLEL_FROM_PX - 1):
-        assert numba.get_num_threads() == 1
-    assert numba.get_num_threads() == THREADS
 
 
 def test_saturation_masks_whole_superpixel_near_white():

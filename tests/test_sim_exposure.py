@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from simulators.exposure import EXACT_POISSON_BELOW_E, PARALLEL_FROM_PX, one_thread_if_small
+from simulators.exposure import EXACT_POISSON_BELOW_E
 from simulators.sensor import SensorModel
 
 BLACK = 64
@@ -53,7 +53,6 @@ def test_normal_limit_has_the_poisson_mean_and_variance() -> None:
 
 def test_a_frame_is_the_same_on_one_thread_and_on_many() -> None:
     sensor = SensorModel(width=600, height=400, prnu_sigma=0.01, optical_black_px=8)
-    assert np.prod(sensor.raw_shape) >= PARALLEL_FROM_PX  # else one thread either way
     radiance = np.random.default_rng(0).uniform(0.0, 20.0, (*sensor.superpixel_shape, 3))
     threads = numba.get_num_threads()
     try:
@@ -64,15 +63,6 @@ def test_a_frame_is_the_same_on_one_thread_and_on_many() -> None:
     many = sensor.expose(radiance, 0.05, 200, frame_seed=5)
     assert np.array_equal(one, many)
     assert not np.array_equal(many, sensor.expose(radiance, 0.05, 200, frame_seed=6))
-
-
-def test_a_small_frame_is_exposed_on_the_calling_thread_only() -> None:
-    threads = numba.get_num_threads()
-    with one_thread_if_small(PARALLEL_FROM_PX - 1):
-        assert numba.get_num_threads() == 1
-    with one_thread_if_small(PARALLEL_FROM_PX):
-        assert numba.get_num_threads() == threads
-    assert numba.get_num_threads() == threads
 
 
 def test_pixels_are_independent() -> None:

@@ -10,7 +10,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from acquisition.reduction.fusedbinning import bin_frame
+from acquisition.reduction import image
+from acquisition.reduction.fusedbinning import HELPER_FROM_SAMPLES, bin_frame
 from acquisition.reduction.image import FrameSamples, bin_frames
 from acquisition.reduction.point import UNCERTAINTY_TERMS
 from acquisition.tables import IsotropicTable, MerlTable
@@ -69,7 +70,8 @@ def _same(a: tuple[IsotropicTable, MerlTable], b: tuple[IsotropicTable, MerlTabl
 def test_fused_tables_equal_reference_bit_for_bit(fold: bool, variance: bool, rel: bool,
                                                   budget: bool) -> None:
     rng = np.random.default_rng(15)
-    frames = [_frame(rng, variance=variance, rel=rel) for _ in range(3)]
+    frames = [_frame(rng, n, variance=variance, rel=rel)  # the first through the helper thread
+              for n in (HELPER_FROM_SAMPLES, 6000, 6000)]
     ref, fused, one = (_tables(fold, budget) for _ in range(3))
     bin_frames(frames, *ref, None, 0, fused=False)
     bin_frames(frames, *fused, None, 0)
@@ -102,6 +104,25 @@ def test_fused_in_two_threads_equals_one() -> None:
     with ThreadPoolExecutor(1) as pool:
         assert bin_frame(fs.wi, fs.wo, fs.brdf, fs.variance, fs.calibration_rel, *two, pool)
     _same(one, two)
+
+
+def test_only_frames_of_many_samples_go_to_the_helper_thread(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    handed: list[int] = []
+
+    class Spy(ThreadPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+            handed.append(args[2].shape[0])  # wi of _merl_then_part
+            return super().submit(fn, *args, **kwargs)
+
+    rng = np.random.default_rng(18)
+    frames = [_frame(rng, n) for n in (HELPER_FROM_SAMPLES, HELPER_FROM_SAMPLES - 4, 6000)]
+    with Spy(1) as spy:
+        monkeypatch.setattr(image, "helper_pool", lambda: spy)
+        bin_frames(frames, *_tables(True), None, 0)
+        assert handed == [HELPER_FROM_SAMPLES]
+        bin_frames(frames, *_tables(True), None, 0, threads=False)
+    assert handed == [HELPER_FROM_SAMPLES]
 
 
 @pytest.mark.parametrize("field", ["brdf", "variance"])

@@ -70,7 +70,7 @@ from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.fixedorder import weighted_variance
-from acquisition.reduction.fusedbinning import bin_frame, helper_pool
+from acquisition.reduction.fusedbinning import bin_frame, helper_for, helper_pool
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import (
     PixelGeometry,
@@ -511,13 +511,15 @@ def bin_frames(frames: Iterable[FrameSamples], table: IsotropicTable, merl: Merl
     """Bin each frame's per-pixel samples into both tables, one frame at a time (memory does
     not grow with the session); returns (samples, frames) binned. ``fused``: through the
     fused kernels (:mod:`acquisition.reduction.fusedbinning`) where they apply, the MERL
-    table and part of the isotropic one in a helper thread (``threads``), else (and as their
-    reference) through the tables' own ``add`` methods: the same tables bit for bit."""
+    table and part of the isotropic one in a helper thread (``threads``; frames of
+    :data:`~acquisition.reduction.fusedbinning.HELPER_FROM_SAMPLES` samples or more), else
+    (and as their reference) through the tables' own ``add`` methods: the same tables bit for
+    bit."""
     samples = count = 0
     pool = helper_pool() if threads else None
     for fs in frames:
         if not (fused and bin_frame(fs.wi, fs.wo, fs.brdf, fs.variance, fs.calibration_rel,
-                                    table, merl, pool)):
+                                    table, merl, helper_for(fs.count, pool))):
             _bin_reference(fs, table, merl)
         samples += fs.count
         count += 1

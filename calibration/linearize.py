@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.linearize_kernel import absent, linearize_cells
+from calibration.linearize_kernel import linearize_cells
 from calibration.raw import RawFrame
 from drivers.errors import CalibrationError
 
@@ -256,20 +256,19 @@ def _run_kernel(
                  + saturation * (frame.white_per_position - frame.black_per_position)
                  ).astype(np.float32)
     red_at = divmod(frame.cfa_pattern.index("R"), 2)  # a Bayer layout (the loader checks)
-    gain, read = noise_arrays if noise_arrays is not None else (absent(1, np.float64),) * 2
+    gain, read = noise_arrays if noise_arrays is not None else (None, None)
     rgb = np.empty((hh, ww, 3), np.float32)
     valid = np.empty((hh, ww), dtype=bool)
-    variance = np.empty((hh, ww, 3), np.float32) if noise_arrays is not None else absent(3)
+    variance = np.empty((hh, ww, 3), np.float32) if noise_arrays is not None else None
+    bad = None if bad_pixels is None else bad_pixels.astype(bool, copy=False)
     linearize_cells(
-        mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64),
-        dark if dark is not None else absent(2),
-        flat if flat_per_pixel else absent(2),
-        flat if flat is not None and not flat_per_pixel else absent(3),
-        bad_pixels.astype(bool, copy=False) if bad_per_pixel else absent(2, bool),
-        bad_pixels.astype(bool, copy=False) if bad_pixels is not None and not bad_per_pixel
-        else absent(2, bool),
+        mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64), dark,
+        flat if flat_per_pixel else None,
+        flat if flat is not None and not flat_per_pixel else None,
+        bad if bad_per_pixel else None,
+        bad if bad is not None and not bad_per_pixel else None,
         gain, read, float(scale), rgb, valid, variance)
-    return rgb, valid, (variance if noise_arrays is not None else None)
+    return rgb, valid, variance
 
 
 @dataclass(frozen=True)

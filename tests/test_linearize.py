@@ -35,10 +35,12 @@ def _reference(mosaic, pattern, black, white, t, saturation=0.99):
     return rgb, valid
 
 
-def _frame(mosaic, pattern="RGGB", black=64, white=4095, t=0.5, iso=100.0, f_number=4.0):
+def _frame(mosaic, pattern="RGGB", black=64, white=4095, t=0.5, iso=100.0, f_number=4.0,
+           as_is=False):
     black = np.broadcast_to(np.asarray(black, float), (2, 2)).copy()
     return RawFrame(
-        path=Path("mem.dng"), mosaic=mosaic.astype(np.float32), cfa_pattern=pattern,
+        path=Path("mem.dng"), mosaic=mosaic if as_is else mosaic.astype(np.float32),
+        cfa_pattern=pattern,
         black_per_position=black, white_per_position=np.full((2, 2), float(white)),
         optical_black=None, camera_whitebalance={}, exposure_s=t, iso=iso, f_number=f_number,
         make=None, model=None, raw_shape=mosaic.shape, visible_origin=(0, 0),
@@ -97,6 +99,21 @@ def test_thread_pool_and_one_thread_give_the_same_bits(monkeypatch, pattern):
     for a, b in ((threaded.rgb, serial.rgb), (threaded.variance, serial.variance),
                  (threaded.valid, serial.valid)):
         assert a.tobytes() == b.tobytes()
+
+
+def test_a_view_into_wider_rows_gives_the_bits_of_a_contiguous_copy():
+    """LibRaw's visible area is a view into the sensor's full rows (margins left and right):
+    read in place as one run of memory, it gives the bits of the same pixels copied out."""
+    rng = np.random.default_rng(3)
+    full = rng.integers(0, 4096, (130, 170), dtype=np.uint16)
+    view = full[3:123, 11:161]  # 120 × 150 px, margins on every side
+    assert not view.flags.c_contiguous
+    flat = rng.uniform(0.9, 1.1, view.shape).astype(np.float32)
+    noise = NoiseModel(gain_e_per_dn=1.5, read_noise_dn=2.0)
+    a = linearize(_frame(view, "GRBG", as_is=True), flat=flat, noise=noise)
+    b = linearize(_frame(np.ascontiguousarray(view), "GRBG", as_is=True), flat=flat, noise=noise)
+    assert a.rgb.tobytes() == b.rgb.tobytes() and a.variance.tobytes() == b.variance.tobytes()
+    assert np.array_equal(a.valid, b.valid) and a.valid.any()
 
 
 def test_saturation_masks_whole_superpixel_near_white():

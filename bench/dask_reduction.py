@@ -5,7 +5,7 @@ temporary folder.
 
 Three ways to reduce the same session, each twice, in the order serial, pool, Dask, Dask,
 pool, serial (a shared machine's load drifts: a linear drift cancels; compare within a run),
-each in a fresh process (``bench/dask_child.py``) that has reduced one frame before the clock
+each in a fresh process (``bench/_dask_child.py``) that has reduced one frame before the clock
 starts (numba's kernels loaded):
 
 * serial: :class:`ImageReducer` opened here, every frame into one partial, finished here;
@@ -84,7 +84,7 @@ def _plan(folder: Path, rig: Path) -> Path:
 
 
 def _run(how: str, session: Path) -> dict[str, float | str]:
-    out = subprocess.run([sys.executable, str(HERE / "dask_child.py"), how, str(session)],
+    out = subprocess.run([sys.executable, str(HERE / "_dask_child.py"), how, str(session)],
                          capture_output=True,
                          text=True, check=True, cwd=ROOT,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})

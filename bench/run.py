@@ -1,4 +1,5 @@
-"""Run every benchmark (``bench/*.py`` functions named ``bench_*``) and write results.json.
+"""Run every benchmark (``bench/*.py`` functions named ``bench_*``; ``_*.py`` are helpers) and
+write results.json.
 
 Each benchmark returns ``{"name": {"value": number, "unit": "..."}}``; ratios are measured
 against a baseline taken in the same run, since the machines are shared and noisy.
@@ -21,7 +22,7 @@ def main(argv: list[str]) -> int:
     results: dict[str, dict[str, float | str]] = {}
     failed = []
     for path in sorted(HERE.glob("*.py")):
-        if path.name == "run.py" or (only and path.stem not in only):
+        if path.name == "run.py" or path.name.startswith("_") or (only and path.stem not in only):
             continue
         spec = importlib.util.spec_from_file_location(f"bench_{path.stem}", path)
         module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]

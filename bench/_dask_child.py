@@ -1,5 +1,5 @@
 """One timed reduction of bench/dask_reduction.py in a fresh process:
-``python bench/dask_child.py serial|pool|dask SESSION`` prints, as JSON, its wall time, the CPU
+``python bench/_dask_child.py serial|pool|dask SESSION`` prints, as JSON, its wall time, the CPU
 time of the processes doing the work, this process's CPU time besides (Dask: the client and the
 LocalCluster's scheduler), frames and the tables' digest. (Not run from the ``-c`` string it
 once was: a spawned pool's processes import their functions from this file.)"""

@@ -119,6 +119,25 @@ def test_image_session_partials_merge_to_the_reduced_table(sessions, tmp_path):
     assert sum(p.samples for p in singles.values()) == red.samples > 100_000
 
 
+def test_running_sums_take_frames_in_any_order_and_each_once(sessions, tmp_path):
+    """A Dask worker's running sums (PartialBuilder): frames added one call at a time, in a
+    shuffled order, give the reduced table; a frame added twice is refused."""
+    from acquisition.reduction.image import PartialBuilder
+    from acquisition.tables.partial import PartialError
+
+    reducer = ImageReducer.open(sessions["sphere"])
+    frames = list(reducer.frames)
+    random.Random(3).shuffle(frames)
+    builder = PartialBuilder(reducer)
+    for f in frames:
+        builder.add([f])
+    red = reducer.reduction(builder.partial())
+    red.table.save_h5(tmp_path / "running.h5", merl=red.merl)
+    assert table_contents(tmp_path / "running.h5") == table_contents(sessions["sphere-table"])
+    with pytest.raises(PartialError, match="binned twice"):
+        builder.add([frames[0]])
+
+
 def test_naive_float_partials_would_depend_on_the_split(sessions):
     """The sphere's per-pixel samples summed per isotropic bin in float64 (what the tables did
     before): one sum over all samples, one partial per frame merged, and partials of half

@@ -95,7 +95,7 @@ from acquisition.session.hdr import HDR_DONE_META, camera_noise_model, hdr_group
 from acquisition.session.journal import StepRecord
 from acquisition.tables import IsotropicTable, MerlTable
 from acquisition.tables.backend import resolve_backend
-from acquisition.tables.partial import ReductionPartial
+from acquisition.tables.partial import PartialError, ReductionPartial
 from calibration.bundle import CalibrationBundle
 from calibration.hdr import merge
 from calibration.linearize import LinearImage
@@ -463,6 +463,9 @@ class PartialBuilder:
     def add(self, frames: Iterable[list[StepRecord]]) -> None:
         """Bin ``frames`` (rows of :attr:`ImageReducer.frames`) into the sums."""
         for fs in self.reducer.samples(frames):
+            if fs.step in self.steps:  # e.g. a task run twice on one worker
+                raise PartialError(f"frame at step {fs.step} was binned twice: each frame must "
+                                   "be reduced once")
             bin_frames([fs], self.table, self.merl, None, 0)
             self.steps.add(fs.step)
             self.samples += fs.count

@@ -191,6 +191,14 @@ def test_a_failure_on_a_worker_is_one_line_naming_the_session(sessions, cluster,
     assert list((tmp_path / "lib").iterdir()) == []
 
 
+@pytest.mark.parametrize("value", ["-3", "0", "abc"])
+def test_a_bad_number_of_workers_is_named(value, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["reduce", str(tmp_path), "--workers", value])
+    assert exit_.value.code == 2
+    assert f"expected a number of workers ≥ 1, got '{value}'" in capsys.readouterr().err
+
+
 def test_an_unreachable_scheduler_is_one_line(sessions, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr("acquisition.reduction.distributed.CONNECT_TIMEOUT_S", 0.5)
     assert main(["reduce", str(sessions["sphere"]), "-o", str(tmp_path / "t.h5"),

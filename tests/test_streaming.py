@@ -92,6 +92,13 @@ def test_a_streamed_point_capture_ends_with_the_reduced_table(tmp_path: Path) ->
     status = api.session_status(tmp_path / "s", drift=False, verify=False)
     assert status.tables == ["brdf.h5"] and not status.capturing
     assert f"table     {tmp_path / 's' / 'brdf.h5'} (reduced)" in status.lines()
+    # resuming a complete session keeps its table (it may have been reduced with a
+    # calibration since); one without a table gets it
+    table = (tmp_path / "s" / "brdf.h5").read_bytes()
+    assert api.resume(tmp_path / "s", reduce=True).streamed is None
+    assert (tmp_path / "s" / "brdf.h5").read_bytes() == table
+    assert api.resume(tmp_path / "p", reduce=True).streamed["pending"] == 0  # type: ignore[index]
+    assert_same_tables(tmp_path / "p" / "brdf.h5", tmp_path / "again.h5")
 
 
 def test_image_frames_are_binned_during_the_capture_into_the_reduced_table(tmp_path: Path) -> None:

@@ -164,6 +164,8 @@ def run_session(
     worker = None
     try:
         with capture_lock(folder.path):
+            if reduce and _complete(folder) and (folder.path / DEFAULT_TABLE).exists():
+                reduce = False  # nothing to capture: its table (perhaps calibrated) is kept
             if reduce:  # started first: it loads while the devices open
                 from acquisition.api.streaming import StreamingWorker
 
@@ -175,6 +177,12 @@ def run_session(
     finally:  # the lock is released: the worker sees the capture end and finishes
         streamed = None if worker is None else worker.result()
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0, streamed)
+
+
+def _complete(folder: SessionFolder) -> bool:
+    """True when every step of the session's journal is done."""
+    with folder.journal(readonly=True) as journal:
+        return all(status == "done" for status, n in journal.counts().items() if n)
 
 
 def _run_engine(folder: SessionFolder, devices: RigDevices, planner: Planner,

@@ -71,20 +71,22 @@ def _add_no_reduce(p: argparse.ArgumentParser) -> None:
 
 def _workers(text: str) -> int:
     """A number of worker processes ≥ 1 (argparse type)."""
-    n = _frames(text)
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of workers ≥ 1, got {text!r}")
-    return n
+    return _count(text, 1, "workers")
 
 
 def _frames(text: str) -> int:
     """A number of frames ≥ 0 (argparse type)."""
+    return _count(text, 0, "frames")
+
+
+def _count(text: str, least: int, what: str) -> int:
+    """A whole number of ``what`` ≥ ``least`` (argparse type)."""
     try:
         n = int(text)
     except ValueError:
-        n = -1
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"expected a number of frames ≥ 0, got {text!r}")
+        n = least - 1
+    if n < least:
+        raise argparse.ArgumentTypeError(f"expected a number of {what} ≥ {least}, got {text!r}")
     return n
 
 

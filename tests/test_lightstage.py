@@ -108,6 +108,23 @@ def test_olat_brdf_table_matches_the_ggx_material(olat_session) -> None:
     assert np.median(np.abs(rel)) < 0.02 and abs(np.median(rel)) < 0.01
 
 
+def test_olat_tables_carry_an_uncertainty_and_fit_from_the_session_folder(olat_session) -> None:
+    """Per-bin std_error from the sensor's noise, each LED's calibration noise and the
+    binning term; `gonio fit SESSION` reduces a light-stage folder with its own reducer and
+    recovers the material within its 1σ."""
+    path, _ = olat_session
+    fit = api.fit(path, "ggx")  # a session folder: reduced in memory
+    table = api.open_table(path)
+    measured = table.count > 0
+    assert table.tracks_uncertainty and table.provenance["noise_model"] == "sensor model"
+    assert np.isfinite(table.std_error[measured]).all() and (table.std_error[measured] > 0).all()
+    assert 0.5 < fit.chi2_dof < 2.0
+    truth = {"alpha": 0.3, "albedo": 0.2, "f0": 0.04}
+    for name, value in truth.items():
+        pull = (np.atleast_1d(fit.params[name]) - value) / np.atleast_1d(fit.sigma[name])
+        assert np.all(np.abs(pull) < 5), (name, fit.params[name], fit.sigma[name])
+
+
 def test_per_led_intensity_errors_are_calibrated_out(olat_session) -> None:
     path, _ = olat_session
     stage = stage_config(SessionFolder(path).rig())

@@ -28,8 +28,13 @@ def open_table(source: str | Path | IsotropicTable, *,
         return source
     path = Path(source)
     if path.is_dir():
+        from acquisition.api.sessions import refuse_calibration_of_lightstage
+        from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
         from acquisition.reduction.point import reduce_session
 
+        if is_lightstage_session(path):
+            refuse_calibration_of_lightstage(path, calibration)
+            return reduce_lightstage_session(path).table
         return reduce_session(path, bundle=calibration).table
     if not path.exists():
         raise ConfigError(f"{path} does not exist: give a table (.h5) or a session folder")

@@ -179,6 +179,13 @@ def run_session(
     return CaptureResult(folder, counts, None if t0 is None or t1 is None else t1 - t0, streamed)
 
 
+def refuse_calibration_of_lightstage(path: str | Path, calibration: object) -> None:
+    """ConfigError when a calibration bundle is given for a light-stage session."""
+    if calibration is not None:
+        raise ConfigError(f"{path} is a light-stage session, calibrated by its own OLAT white "
+                          "frames: drop --calibration")
+
+
 def _complete(folder: SessionFolder) -> bool:
     """True when every step of the session's journal is done."""
     with folder.journal(readonly=True) as journal:
@@ -437,9 +444,7 @@ def reduce(
     check_output(out, what=TABLE_WHAT, ours=is_table_file, inputs=(path,))
     resume = checkpoint_path(out)
     if is_lightstage_session(path):
-        if calibration is not None:
-            raise ConfigError(f"{path} is a light-stage session, calibrated by its own OLAT white "
-                              "frames: drop --calibration")
+        refuse_calibration_of_lightstage(path, calibration)
         result: Reduction = reduce_lightstage_session(path, progress)
     else:
         result = reduce_session(session_dir, progress, bundle=calibration, checkpoint=resume,

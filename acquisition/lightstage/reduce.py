@@ -15,6 +15,15 @@ pipeline with the point light at LED k: each valid sample pixel gives
 f = P / (C_k · cos θi / r²) (:func:`acquisition.reduction.image.frame_samples`), binned into the
 MERL table and the plan's isotropic table. A dark frame, when the session has one, is
 subtracted from every frame first (DN/s).
+
+Uncertainty
+-----------
+Frames are linearized with a noise variance per superpixel where a noise model is known (the
+simulated camera's sensor model; a real camera has none yet), so the table's budget has the
+image reduction's terms (:data:`acquisition.reduction.point.UNCERTAINTY_TERMS`): each sample's
+``noise`` (independent), C_k's own relative uncertainty from the plate pixels' noise as the
+``white_reference`` term (correlated: common to every sample of LED k), and the ``binning``
+term of bins filled by many pixels. The mean dark frame's noise is not in the budget.
 """
 
 from __future__ import annotations
@@ -38,9 +47,15 @@ from acquisition.reduction.image import (
     bin_frames,
     frame_samples,
     white_calibration,
+    white_relative_uncertainty,
 )
 from acquisition.reduction.imaging import PixelGeometry, frame_geometry
-from acquisition.reduction.point import session_provenance
+from acquisition.reduction.point import (
+    UNCERTAINTY_TERMS,
+    linearize_with_variance,
+    noise_source,
+    session_provenance,
+)
 from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
 from acquisition.session.steps import DARK, POSE, REFERENCE
@@ -68,10 +83,14 @@ class LedCalibration:
         NaN for an LED without a white frame.
     pixels:
         (N,) plate pixels used per LED (0 = not calibrated).
+    relative_u:
+        (N, 3) relative standard uncertainty of C_k from the plate pixels' noise (NaN without
+        a noise model).
     """
 
     scale: np.ndarray
     pixels: np.ndarray
+    relative_u: np.ndarray
 
     @property
     def relative(self) -> np.ndarray:
@@ -104,8 +123,9 @@ def dark_rate(folder: SessionFolder, records: list[StepRecord]) -> np.ndarray | 
 
 
 def load_frame(folder: SessionFolder, rec: StepRecord, dark: np.ndarray | None) -> LinearImage:
-    """A frame linearized (DN/s), minus the dark rate."""
-    image = linearize(load_raw(folder.frames_dir / str(rec.frame)))
+    """A frame linearized (DN/s) with its noise variance where a model is known, minus the
+    dark rate."""
+    image = linearize_with_variance(folder.frames_dir / str(rec.frame), folder.rig())
     return image if dark is None else dataclasses.replace(image, rgb=image.rgb - dark)
 
 
@@ -130,6 +150,7 @@ def led_calibration(session_dir: str | Path) -> LedCalibration:
     dark = dark_rate(folder, records)
     n = len(rig.light_stage.light_dirs) if rig.light_stage else 0
     scale, pixels = np.full((n, 3), np.nan), np.zeros(n, dtype=int)
+    relative_u = np.full((n, 3), np.nan)
     rho = np.asarray(rig.white_reference.reflectance, dtype=np.float64)
     check = FrameCheck(folder.path)
     for rec in records:
@@ -141,10 +162,11 @@ def led_calibration(session_dir: str | Path) -> LedCalibration:
             continue
         geo = frame_geometry_of(rig, rec, image.valid.shape, "flat")
         scale[k], pixels[k] = white_calibration(image, geo, rig.camera.roi, rho)
+        relative_u[k] = white_relative_uncertainty(image, geo, rig.camera.roi)
     check.raise_if_any()
     if not pixels.any():
         raise SessionError(f"{folder.path} has no white-reference OLAT frame: resume the capture")
-    return LedCalibration(scale, pixels)
+    return LedCalibration(scale, pixels, relative_u)
 
 
 def iter_lightstage_samples(session_dir: str | Path, *, min_cos: float = DEFAULT_MIN_COS,
@@ -164,7 +186,8 @@ def iter_lightstage_samples(session_dir: str | Path, *, min_cos: float = DEFAULT
         if image is None:
             continue
         geo = frame_geometry_of(rig, rec, image.valid.shape)
-        yield frame_samples(image, geo, cal.require(k, str(folder.path)), rec.step, min_cos)
+        yield frame_samples(image, geo, cal.require(k, str(folder.path)), rec.step, min_cos,
+                            cal.relative_u[k])
     check.raise_if_any()
 
 
@@ -190,12 +213,15 @@ def reduce_lightstage_session(
     provenance = session_provenance(folder, rig, plan, image_based=True, light_stage=True,
                                     sample_shape=rig.sample.shape,
                                     led_intensity_spread_pct=spread)
+    provenance["noise_model"] = noise_source(rig, float(rig.camera.iso), None)
     table = IsotropicTable(plan.table.theta_i_edges, plan.table.theta_r_edges,
                            plan.table.delta_phi_edges, provenance=provenance)
+    table.track_uncertainty(*UNCERTAINTY_TERMS)
     merl = MerlTable(dict(provenance))
     samples, frames = bin_frames(
         iter_lightstage_samples(folder.path, min_cos=min_cos, calibration=cal),
         table, merl, progress, total)
+    table.add_binning_term()
     if merl_path is not None:
         write_merl(merl_path, merl)
     return ImageReduction(table=table, frames=frames, references=int((cal.pixels > 0).sum()),

@@ -68,6 +68,24 @@ def test_bad_frames_are_named_counted_verified_and_retaken(
     np.testing.assert_array_equal(again.mean, clean.mean)  # the retaken frames are the same
 
 
+def test_a_frame_changed_but_still_decodable_is_refused_by_reduce(
+        session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Bytes changed inside a frame's pixels: it still decodes (into wrong values), so only
+    its SHA-256 against the journal's tells; reduce refuses it, naming it and the fix."""
+    frame = sorted((session / "frames").glob("*.dng"))[2]
+    data = bytearray(frame.read_bytes())
+    for i in range(len(data) - 3000, len(data) - 1000):  # pixel data, the file's tail
+        data[i] ^= 0x5A
+    frame.write_bytes(bytes(data))
+    assert main(["inspect", str(frame)]) == 0  # LibRaw reads it without complaint
+    capsys.readouterr()
+    table = tmp_path / "t.h5"
+    assert main(["reduce", str(session), "-o", str(table)]) != 0
+    line = _one_line(capsys.readouterr().err)
+    assert frame.name in line and "corrupt" in line and f"gonio resume {session}" in line
+    assert not table.exists()
+
+
 def test_verify_finds_a_journal_copied_without_its_write_ahead_log(
         session: Path, tmp_path: Path) -> None:
     assert api.verify_session(session).ok

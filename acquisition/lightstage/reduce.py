@@ -157,7 +157,7 @@ def led_calibration(session_dir: str | Path) -> LedCalibration:
         k = light_of(rec)
         if rec.kind != REFERENCE or k is None:
             continue
-        image = check.load(rec.frame, lambda rec=rec: load_frame(folder, rec, dark))
+        image = check.load(rec, lambda rec=rec: load_frame(folder, rec, dark))
         if image is None:
             continue
         geo = frame_geometry_of(rig, rec, image.valid.shape, "flat")
@@ -182,7 +182,7 @@ def iter_lightstage_samples(session_dir: str | Path, *, min_cos: float = DEFAULT
         k = light_of(rec)
         if rec.kind != POSE or k is None:
             continue
-        image = check.load(rec.frame, lambda rec=rec: load_frame(folder, rec, dark))
+        image = check.load(rec, lambda rec=rec: load_frame(folder, rec, dark))
         if image is None:
             continue
         geo = frame_geometry_of(rig, rec, image.valid.shape)

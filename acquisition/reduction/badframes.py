@@ -1,19 +1,23 @@
 """Frames a reduction cannot read: collected, so that one error lists every bad frame.
 
 A reduction goes on past a frame whose RAW file cannot be decoded (truncated, corrupted on a
-copy) and, once every frame has been tried, stops with one line naming them all and the fix:
-`gonio resume` sees their SHA-256 no longer match the journal and retakes them. No table is
-written from a session with a bad frame.
+copy) or whose bytes no longer have the SHA-256 the journal recorded when it was written (a
+corruption that still decodes, into wrong pixels), and, once every frame has been tried, stops
+with one line naming them all and the fix: `gonio resume` sees their SHA-256 no longer match
+the journal and retakes them. No table is written from a session with a bad frame.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
+from acquisition.session.folder import FRAMES_DIR
+from acquisition.session.journal import StepRecord
 from drivers.errors import RawFormatError, SessionError
+from drivers.storage import sha256_file
 
 T = TypeVar("T")
 SHOWN = 5
@@ -31,13 +35,29 @@ class FrameCheck:
     session: Path
     bad: list[str] = field(default_factory=list)
 
-    def load(self, frame: str | None, read: Callable[[], T]) -> T | None:
-        """``read()``, or None (and the frame noted) when its RAW file cannot be decoded."""
+    def load(self, records: StepRecord | Sequence[StepRecord], read: Callable[[], T]) -> T | None:
+        """``read()`` of the frames of ``records`` (one, or an HDR bracket's), or None (and a
+        frame noted) when a frame's bytes differ from the SHA-256 its journal row recorded or
+        its RAW file cannot be decoded."""
+        rows = [records] if isinstance(records, StepRecord) else list(records)
+        for rec in rows:
+            if rec.sha256 is not None and not self._intact(rec):
+                self.bad.append(str(rec.frame))
+                return None
         try:
             return read()
         except RawFormatError:
-            self.bad.append(str(frame))
+            self.bad.append(str(rows[0].frame))
             return None
+
+    def _intact(self, rec: StepRecord) -> bool:
+        """Whether frame ``rec`` still has its recorded SHA-256 (a missing file is left to
+        the reader, whose error names it)."""
+        path = self.session / FRAMES_DIR / str(rec.frame)
+        try:
+            return sha256_file(path) == rec.sha256
+        except FileNotFoundError:
+            return True
 
     def raise_if_any(self) -> None:
         """:class:`BadFramesError` naming every bad frame, if there is one."""

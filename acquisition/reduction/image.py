@@ -297,7 +297,7 @@ class ImageReducer:
         """C (3,) and its variance (3,) from one white-reference frame, or None when its RAW
         cannot be decoded (noted in :attr:`check`); SessionError when no plate pixel is
         valid in the ROI."""
-        image = self.check.load(rec.frame, lambda: _linear(self.folder, self.rig, rec, self.cal))
+        image = self.check.load(rec, lambda: _linear(self.folder, self.rig, rec, self.cal))
         if image is None:
             return None
         geo = _geometry(self.rig, rec, image.valid.shape, "flat", self.model)
@@ -358,7 +358,7 @@ class ImageReducer:
         for recs in frames:
             rec = recs[0]
             plain = len(recs) == 1 and hdr_group(rec.note) is None
-            image = self.check.load(rec.frame, lambda recs=recs, rec=rec, plain=plain: (
+            image = self.check.load(recs, lambda recs=recs, rec=rec, plain=plain: (
                 _linear(self.folder, self.rig, rec, self.cal) if plain
                 else _merged(self.folder, self.rig, recs, self.cal)))
             if image is None:

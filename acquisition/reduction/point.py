@@ -562,9 +562,9 @@ def read_signal(folder: SessionFolder, rig: RigConfig, cal: CalibrationBundle | 
     decoded (noted in ``check``)."""
     rec = frame.rows[0]
     if not frame.bracket:
-        return check.load(rec.frame, lambda: sample_signal(
+        return check.load(rec, lambda: sample_signal(
             folder.frames_dir / str(rec.frame), rig, rec.step, cal))
-    return check.load(rec.frame, lambda: bracket_signal(
+    return check.load(frame.rows, lambda: bracket_signal(
         [folder.frames_dir / str(r.frame) for r in frame.rows], rig, rec.step, cal))
 
 

@@ -150,3 +150,20 @@ def test_terms_a_bins_samples_share_are_set_per_bin_and_survive_the_file(tmp_pat
     back = IsotropicTable.load_h5(tmp_path / "t.h5")
     np.testing.assert_allclose(back.std_error[0, 0, 0], table.std_error[0, 0, 0])
     assert back.uncertainty_terms["geometry_calibration"].correlated
+
+
+@pytest.mark.parametrize(("ratio", "hint"), [(1.04, False), (360.5, True)])
+def test_a_scatter_far_above_noise_is_explained(ratio: float, hint: bool) -> None:
+    """The reduce line's repeats ratio: near 1 it stands alone; far above, it says why (a
+    dense plan's bins hold samples at different angles), lest an operator suspect the rig."""
+    from types import SimpleNamespace
+
+    from acquisition.cli.capture import SCATTER_HINT, _reduce_report
+
+    table = SimpleNamespace(count=np.array([3, 0]), tracks_uncertainty=True,
+                            std_error=np.full((2, 3), 0.01), mean=np.ones((2, 3)),
+                            provenance={"noise_model": "sensor model"}, scatter=(ratio, 261))
+    result = SimpleNamespace(table=table, frames=4, drift_pct=0.1, references=2)
+    _, lines = _reduce_report(Path("t.h5"), result)  # type: ignore[arg-type]
+    assert f"repeats scatter {ratio:.2f}× the noise prediction over 261 bins" in lines[-1]
+    assert (SCATTER_HINT in lines[-1]) == hint

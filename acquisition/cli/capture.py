@@ -204,6 +204,13 @@ def _follow(args: argparse.Namespace) -> int:
     return 0
 
 
+SCATTER_HINT_ABOVE = 3.0
+SCATTER_HINT = (" (more than noise: the BRDF changes across those bins, whose samples lie at "
+                "different angles; narrower bins show less)")
+"""Said after a repeats' scatter ratio above :data:`SCATTER_HINT_ABOVE`: a dense plan puts
+several poses in a bin, and near a specular peak their values differ by far more than noise."""
+
+
 def _reduce_report(out: Path, result: api.Reduction) -> tuple[dict[str, object], list[str]]:
     """One reduced table's JSON object and text lines."""
     table = result.table
@@ -218,7 +225,8 @@ def _reduce_report(out: Path, result: api.Reduction) -> tuple[dict[str, object],
     if table.tracks_uncertainty:
         lines.append(f"uncertainty: median {rel:.3g} % per bin (noise model: "
                      f"{table.provenance.get('noise_model', 'unknown')})"
-                     + (f"; repeats scatter {ratio:.2f}× the prediction over {repeats} bins"
+                     + (f"; repeats scatter {ratio:.2f}× the noise prediction over {repeats} "
+                        f"bins{SCATTER_HINT if ratio > SCATTER_HINT_ABOVE else ''}"
                         if repeats else ""))
     return ({"table": out, "frames": result.frames, "measured_bins": measured,
              "references": result.references, "drift_pct": result.drift_pct,

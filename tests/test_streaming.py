@@ -85,9 +85,10 @@ def test_a_streamed_point_capture_ends_with_the_reduced_table(tmp_path: Path) ->
                         material=POINT_MATERIAL, seed=5)
     assert streamed.streamed is not None and streamed.streamed["pending"] == 0
     assert streamed.streamed["table"] == str(tmp_path / "s" / "brdf.h5")
+    again = api.reduce(tmp_path / "s", tmp_path / "again.h5")
+    assert streamed.streamed["frames"] == again.frames  # sample frames, as reduce counts them
     assert streamed.device_seconds == plain.device_seconds  # the worker delays no move
     assert not (tmp_path / "p" / "brdf.h5").exists()
-    api.reduce(tmp_path / "s", tmp_path / "again.h5")
     assert_same_tables(tmp_path / "s" / "brdf.h5", tmp_path / "again.h5")
     status = api.session_status(tmp_path / "s", drift=False, verify=False)
     assert status.tables == ["brdf.h5"] and not status.capturing

@@ -65,7 +65,9 @@ class FollowResult:
     pending: int
     """Journal rows the capture left not done."""
     frames: int
-    """Frames the stream reduced (a resumed stream's checkpoint included)."""
+    """Sample frames in the table written (as ``gonio reduce`` counts them: white references
+    apart); when no table was written, the frames the stream reduced so far (a resumed
+    stream's checkpoint included)."""
     resumed: int = 0
     """Frames taken from the checkpoint of an earlier, interrupted stream."""
 
@@ -136,7 +138,7 @@ def follow_session(
         write_table(result, out, folder.path, keep_checkpoint=bool(view_pending))
         with suppress(FileNotFoundError):
             live_table_path(out).unlink()
-    return FollowResult(out, result, view_pending, frames, _resumed(stream))
+    return FollowResult(out, result, view_pending, result.frames, _resumed(stream))
 
 
 class _Snapshots:

@@ -16,8 +16,8 @@ from typing import TypeVar
 
 from acquisition.session.folder import FRAMES_DIR
 from acquisition.session.journal import StepRecord
+from acquisition.session.verify import frame_matches_journal
 from drivers.errors import RawFormatError, SessionError
-from drivers.storage import sha256_file
 
 T = TypeVar("T")
 SHOWN = 5
@@ -41,7 +41,7 @@ class FrameCheck:
         its RAW file cannot be decoded."""
         rows = [records] if isinstance(records, StepRecord) else list(records)
         for rec in rows:
-            if rec.sha256 is not None and not self._intact(rec):
+            if not frame_matches_journal(self.session / FRAMES_DIR, rec):
                 self.bad.append(str(rec.frame))
                 return None
         try:
@@ -49,15 +49,6 @@ class FrameCheck:
         except RawFormatError:
             self.bad.append(str(rows[0].frame))
             return None
-
-    def _intact(self, rec: StepRecord) -> bool:
-        """Whether frame ``rec`` still has its recorded SHA-256 (a missing file is left to
-        the reader, whose error names it)."""
-        path = self.session / FRAMES_DIR / str(rec.frame)
-        try:
-            return sha256_file(path) == rec.sha256
-        except FileNotFoundError:
-            return True
 
     def raise_if_any(self) -> None:
         """:class:`BadFramesError` naming every bad frame, if there is one."""

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.session.folder import JOURNAL_FILE, SessionFolder
+from acquisition.session.journal import StepRecord
 from drivers.storage import is_partial, sha256_file
 
 
@@ -55,6 +56,17 @@ class VerifyReport:
                 "journal": self.journal}
 
 
+def frame_matches_journal(frames_dir: Path, rec: StepRecord) -> bool:
+    """Whether a done step's frame still has the SHA-256 its journal row recorded (True for a
+    row with none, or a missing file: the frame's reader names that)."""
+    if rec.sha256 is None:
+        return True
+    try:
+        return sha256_file(frames_dir / str(rec.frame)) == rec.sha256
+    except FileNotFoundError:
+        return True
+
+
 def verify_session(path: str | Path) -> VerifyReport:
     """Re-hash every done frame and check the journal (read only: nothing is written)."""
     folder = SessionFolder(path)
@@ -70,7 +82,7 @@ def verify_session(path: str | Path) -> VerifyReport:
         report.frames_checked += 1
         if not frame.is_file():
             report.missing.append(str(rec.frame))
-        elif sha256_file(frame) != rec.sha256:
+        elif not frame_matches_journal(folder.frames_dir, rec):
             report.mismatched.append(str(rec.frame))
     known = {str(r.frame) for r in done}
     report.unknown = sorted(p.name for p in folder.frames_dir.glob("*")

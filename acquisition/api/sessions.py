@@ -164,12 +164,11 @@ def run_session(
     worker = None
     try:
         with capture_lock(folder.path):
-            if reduce and _complete(folder) and (folder.path / DEFAULT_TABLE).exists():
-                reduce = False  # nothing to capture: its table (perhaps calibrated) is kept
             if reduce:  # started first: it loads while the devices open
-                from acquisition.api.streaming import StreamingWorker
+                from acquisition.api.streaming import StreamingWorker, pending_steps
 
-                worker = StreamingWorker(folder)
+                if pending_steps(folder) or not (folder.path / DEFAULT_TABLE).exists():
+                    worker = StreamingWorker(folder)  # else its table (calibrated?) is kept
             with open_devices(rig, planner, material=material, seed=folder.info.seed,
                               sim_faults=sim_faults, prompt=prompt) as devices:
                 counts, t0, t1 = _run_engine(folder, devices, planner, progress, observers,
@@ -184,12 +183,6 @@ def refuse_calibration_of_lightstage(path: str | Path, calibration: object) -> N
     if calibration is not None:
         raise ConfigError(f"{path} is a light-stage session, calibrated by its own OLAT white "
                           "frames: drop --calibration")
-
-
-def _complete(folder: SessionFolder) -> bool:
-    """True when every step of the session's journal is done."""
-    with folder.journal(readonly=True) as journal:
-        return all(status == "done" for status, n in journal.counts().items() if n)
 
 
 def _run_engine(folder: SessionFolder, devices: RigDevices, planner: Planner,

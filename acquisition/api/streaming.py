@@ -123,7 +123,7 @@ def follow_session(
             stream = None
             while running():
                 time.sleep(poll_s)
-            view_pending, frames = _pending(folder), 0
+            view_pending, frames = pending_steps(folder), 0
         else:
             stream = open_stream(folder, calibration, checkpoint_path(out), checkpoint_every)
             snapshots = _Snapshots(stream, live_table_path(out), folder.path, snapshot_s)
@@ -168,7 +168,8 @@ def _resumed(stream: object) -> int:
     return 0 if run is None else int(run.resumed)
 
 
-def _pending(folder: SessionFolder) -> int:
+def pending_steps(folder: SessionFolder) -> int:
+    """Journal rows of the session not done yet."""
     with folder.journal(readonly=True) as journal:
         return sum(n for status, n in journal.counts().items() if status != "done")
 

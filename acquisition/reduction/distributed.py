@@ -9,10 +9,9 @@ How a session is reduced (:func:`reduce_on_cluster`):
 
 * a worker opens the session (an image-based session's :class:`ImageReducer`: journal, white
   references; a point session's rig and bundle) — the client reads no frame;
-* each frame (an HDR bracket is one frame) is one task: an image-based frame becomes a
-  partial table (:mod:`acquisition.tables.partial`), a point frame its ROI signal (the point
-  budget's angular terms need every sample before any is binned, so the client bins the
-  session's few hundred samples once every signal is in);
+* each frame (an HDR bracket is one frame) is one task; a point frame gives its ROI signal
+  (the point budget's angular terms need every sample before any is binned, so the client
+  bins the session's few hundred samples once every signal is in);
 * an image-based frame is binned into its worker's running sums of the session (a
   :class:`~acquisition.reduction.image.PartialBuilder` per worker thread, kept in the worker
   process between tasks), so no per-frame partial is made, shipped or merged; once every
@@ -339,7 +338,7 @@ class _ClusterRun:
             self.client.run(take_running, s.token)
 
     def _open(self, s: _Session, i: int, future: Any, _at: int) -> None:
-        """A session is open: its frames become tasks (and, image-based, a merge tree)."""
+        """A session is open: its frames become tasks."""
         opened = s.source = future.result()
         self.frames_total += len(opened.frames)
         if isinstance(opened, PointSource):

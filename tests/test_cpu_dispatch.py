@@ -28,6 +28,7 @@ from acquisition import api
 from acquisition.geometry.kinematics import poses_from_directions
 from acquisition.reduction.fixedorder import dot3, weighted_variance
 from acquisition.reduction.pose_kernels import RAD_TO_DEG, sample_poses
+from acquisition.tables import portable_trig
 
 ROOT = Path(__file__).resolve().parent.parent
 SPHERE_PLAN = """format_version = 1
@@ -107,21 +108,47 @@ def test_point_table_is_the_same_under_other_cpu_features(sessions, tmp_path):
     _assert_same(tmp_path / "ref.h5", tmp_path / "base.h5")
 
 
-def _libm_poses(light: np.ndarray, camera: np.ndarray) -> np.ndarray:
-    """(θi, θr, Δφ) degrees with Python's math (libm), one sample at a time."""
+def _python_atan2(y: float, x: float) -> float:
+    """portable_trig.atan2's arithmetic in plain Python floats (IEEE doubles)."""
+    if math.isnan(x) or math.isnan(y):
+        return math.nan
+    ax, ay = abs(x), abs(y)
+    swap = ay > ax
+    num, den = (ax, ay) if swap else (ay, ax)
+    t = num / den if den > 0.0 else 0.0
+    big = t > portable_trig.TAN_PI_8
+    u = (t - 1.0) / (t + 1.0) if big else t
+    z = u * u
+    p = _P[-1]
+    for c in reversed(_P[:-1]):
+        p = p * z + c
+    r = u + u * (z * p)
+    r = math.pi / 4.0 + r if big else r
+    r = math.pi / 2.0 - r if swap else r
+    r = math.pi - r if math.copysign(1.0, x) < 0.0 else r
+    return math.copysign(r, y)
+
+
+_P = [getattr(portable_trig, f"P{k}") for k in range(11)]
+
+
+def _python_poses(light: np.ndarray, camera: np.ndarray, atan2=_python_atan2) -> np.ndarray:
+    """(θi, θr, Δφ) degrees with ``atan2`` in Python, one sample at a time."""
     def theta(x: float, y: float, z: float) -> float:
-        return math.atan2(math.sqrt(x * x + y * y), z) * RAD_TO_DEG
+        return atan2(math.sqrt(x * x + y * y), z) * RAD_TO_DEG
 
     def wrap(a: float) -> float:
         w = (a + 180.0) % 360.0 - 180.0
         return 180.0 if w == -180.0 else w
 
-    return np.array([(theta(*li), theta(*ca), wrap(math.atan2(ca[1], ca[0]) * RAD_TO_DEG
-                                                    - math.atan2(li[1], li[0]) * RAD_TO_DEG))
+    return np.array([(theta(*li), theta(*ca), wrap(atan2(ca[1], ca[0]) * RAD_TO_DEG
+                                                   - atan2(li[1], li[0]) * RAD_TO_DEG))
                      for li, ca in zip(light.tolist(), camera.tolist(), strict=True)])
 
 
-def test_sample_poses_are_libm_bit_for_bit_and_numpy_within_ulps():
+def test_sample_poses_are_portable_arithmetic_bit_for_bit_and_libm_within_ulps():
+    """The kernel (vectorised) is the portable atan2's arithmetic done one sample at a time
+    in Python, bit for bit; libm's atan2 and numpy's angles agree to a few ulp."""
     rng = np.random.default_rng(11)
     light, camera = rng.normal(size=(2, 5000, 3))
     light /= np.sqrt(dot3(light, light))[:, None]
@@ -131,12 +158,36 @@ def test_sample_poses_are_libm_bit_for_bit_and_numpy_within_ulps():
     light[:len(edge)] = [e[0] for e in edge]
     camera[:len(edge)] = [e[1] for e in edge]
     got = sample_poses(light, camera)
-    assert np.array_equal(got, _libm_poses(light, camera), equal_nan=True)
+    assert np.array_equal(got, _python_poses(light, camera), equal_nan=True)
+    assert np.allclose(got, _python_poses(light, camera, math.atan2), rtol=1e-15, atol=1e-13,
+                       equal_nan=True)
     assert np.allclose(got, poses_from_directions(light, camera), rtol=0, atol=1e-10,
                        equal_nan=True)
     assert got[2, 2] == 180.0 and got[3, 2] == 0.0  # Δφ in (−180, 180]; −0 azimuth is −180°
     with pytest.raises(ValueError, match="camera directions"):
         sample_poses(light, camera[:3])
+
+
+def test_wrap_without_fmod_is_floor_modulo_over_its_range():
+    """pose_kernels._wrap_deg (one exact ± 360) equals (a + 180) % 360 − 180 on [−540, 540)."""
+    from numba import njit
+
+    from acquisition.reduction.pose_kernels import _wrap_deg
+
+    @njit(fastmath=False, error_model="numpy")
+    def wrap_all(a, out):  # pragma: no cover - compiled
+        for i in range(a.size):
+            out[i] = _wrap_deg(a[i])
+
+    rng = np.random.default_rng(12)
+    a = np.concatenate([rng.uniform(-540, 540, 100_000), np.arange(-540.0, 540.0, 0.5),
+                        np.nextafter(np.arange(-540.0, 541.0, 180.0), 0.0), [-0.0, math.nan]])
+    out = np.empty(a.size)
+    wrap_all(a, out)
+    want = (a + 180.0) % 360.0 - 180.0
+    want[want == -180.0] = 180.0
+    assert np.array_equal(out, want, equal_nan=True)
+    assert np.array_equal(np.signbit(out), np.signbit(want))
 
 
 def test_weighted_variance_rounds_each_product_then_adds_in_order():

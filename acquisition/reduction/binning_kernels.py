@@ -4,8 +4,8 @@ with its uncertainty budget, one compiled pass per table, no per-sample arrays i
 The reference path (:func:`acquisition.reduction.image.bin_frames` through the tables' own
 ``add`` methods) makes ~10 passes over a frame: MERL indices, values; poses, isotropic
 indices, Δφ folded, the budget's terms joined into one array, range checks, value and budget
-sums. Here each sample is read once: its pose (:func:`pose_kernels.pose`, libm's atan2), its
-bins (:func:`acquisition.tables.kernels._iso_flat`, ``_merl_flat_vectors``), and its value,
+sums. Here each sample is read once: its pose (:func:`pose_kernels.block_poses`, vectorised),
+its bins (:func:`acquisition.tables.kernels._iso_flat`, ``merl_block_vectors``), and its value,
 value², budget terms, angles and angle products go block by block through the exact sums'
 own conversion and scatter (:mod:`acquisition.tables.exact_kernels`). Every value is computed
 by the same IEEE operations in the same order as the reference path, so the tables hold the
@@ -19,33 +19,23 @@ cached code is deleted first (:func:`_drop_stale_cache`).
 
 from __future__ import annotations
 
-import hashlib
 import os
 from pathlib import Path
 
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: libm only
 
+from acquisition.tables.numba_cache import drop_stale_cache  # noqa: E402
+
 _HERE = Path(__file__).resolve()
-DEPENDENCIES = (_HERE.parent / "pose_kernels.py", _HERE.parents[1] / "tables" / "kernels.py",
-                _HERE.parents[1] / "tables" / "exact_kernels.py")
+_TABLES = _HERE.parents[1] / "tables"
+DEPENDENCIES = (_HERE.parent / "pose_kernels.py", _TABLES / "kernels.py",
+                _TABLES / "exact_kernels.py", _TABLES / "portable_trig.py")
 """The files whose compiled functions these kernels call."""
 
 
 def _drop_stale_cache() -> None:
-    """Delete this module's cached machine code when a dependency's source changed since it
-    was compiled (a digest of their sources is kept beside the cache)."""
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in DEPENDENCIES)).hexdigest()
-    cache = _HERE.parent / "__pycache__"
-    stamp = cache / f"{_HERE.stem}.deps"
-    try:
-        if stamp.is_file() and stamp.read_text() == digest:
-            return
-        for old in cache.glob(f"{_HERE.stem}.*.nb[ic]"):
-            old.unlink(missing_ok=True)
-        cache.mkdir(exist_ok=True)
-        stamp.write_text(digest)
-    except OSError:  # a read-only install: numba caches elsewhere (or not at all)
-        pass
+    """This module's cached machine code deleted when a dependency changed (numba_cache)."""
+    drop_stale_cache(_HERE, DEPENDENCIES)
 
 
 _drop_stale_cache()
@@ -53,9 +43,9 @@ _drop_stale_cache()
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
-from acquisition.reduction.pose_kernels import pose  # noqa: E402
+from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
 from acquisition.tables.exact_kernels import BLOCK, _convert, _room, _scatter, add_block  # noqa: E402
-from acquisition.tables.kernels import _iso_flat, _merl_flat_vectors, _mod360  # noqa: E402
+from acquisition.tables.kernels import _iso_flat, _mod360, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 DROP_NAN = -2
@@ -68,11 +58,10 @@ and their products (6): :class:`acquisition.tables.uncertainty.UncertaintySums`'
 def merl_frame(wi, wo, rgb, slot, rows, count, limbs, used, tally, start):  # pragma: no cover
     """MERL index of each light/view pair and its value added block by block, from ``start``
     (:func:`acquisition.tables.exact_kernels.add_block`); returns where it stopped for room."""
-    idx = np.empty(BLOCK, np.int64)
+    idx, scratch = np.empty(BLOCK, np.int64), np.empty((6, BLOCK))
     for a in range(start, wi.shape[0], BLOCK):
         m = min(BLOCK, wi.shape[0] - a)
-        for j in range(m):
-            idx[j] = _merl_flat_vectors(wi, wo, a + j)
+        merl_block_vectors(wi, wo, a, m, scratch, idx)
         if not add_block(idx[:m], rgb, a, slot, rows, count, limbs, used, tally):
             return a
     return wi.shape[0]
@@ -104,13 +93,15 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
     xv, xb = np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS)
     bv, bb = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     f = np.empty((3, BLOCK * BUDGET_SUMS))
+    angles, scratch = np.empty((3, BLOCK)), np.empty((6, BLOCK))
     for a in range(start, wi.shape[0], BLOCK):
         m = min(BLOCK, wi.shape[0] - a)
         if not (_room(m, slot, rows, used) and _room(m, bslot, brows, bused)):
             return a
         nv = nb = 0
+        block_poses(wi, wo, a, m, scratch, angles[0], angles[1], angles[2])
         for i in range(a, a + m):
-            ti, tr, dp = pose(wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2])
+            ti, tr, dp = angles[0, i - a], angles[1, i - a], angles[2, i - a]
             b = _iso_flat(ti, tr, dp, ei, er, ep, fold, first)
             total = 0.0
             for c in range(3):

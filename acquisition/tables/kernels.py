@@ -40,7 +40,11 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.geometry.halfdiff import DEG2RAD, PHI_D_BINS, THETA_D_BINS, THETA_H_BINS  # noqa: E402
+from acquisition.tables import portable_trig  # noqa: E402
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE  # noqa: E402
+from acquisition.tables.numba_cache import drop_stale_cache  # noqa: E402
+
+drop_stale_cache(__file__, (portable_trig.__file__,))  # the MERL kernels compile its acos in
 
 if numba.config.USING_SVML:  # pragma: no cover - only with icc_rt and numba imported earlier
     raise ImportError(
@@ -55,11 +59,37 @@ _NH = float(THETA_H_BINS)
 _ND = float(THETA_D_BINS)
 _NP = float(PHI_D_BINS)
 
+SLOW = -3
+"""Index a vectorised pass leaves to the scalar, libm path."""
+GUARD_REL = 1e-13
+"""Relative distance from a bin edge within which the vectorised MERL path defers to libm's:
+portable_trig is within 3 ulp and libm's acos/atan2 within 1 (4 ulp < 1e-15 relative)."""
+PAIR_BLOCK = 256
+"""Light/view pairs per block of :func:`merl_block_vectors` (its scratch: (6, PAIR_BLOCK))."""
+
 # Every kernel: exact IEEE arithmetic (no fast-math); x/0 → inf/NaN rather than an exception.
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
 # ---------------------------------------------------------------------------- MERL indices
+@njit(inline="always", **_JIT)
+def _merl_inside(x, y, z):  # pragma: no cover - compiled
+    """Flat MERL index of (θh, θd, φd) in radians inside the table with φd in (−π, π], with
+    the reference's arithmetic (as :func:`_merl_flat_rad`); −3 for any other (NaN, out of
+    range, φd to fold). Branch-free: loops that call it vectorise."""
+    ok = (x >= 0.0) & (x <= _HALF_PI) & (y >= 0.0) & (y <= _HALF_PI)
+    ok = ok & (z > -np.pi) & (z <= np.pi)
+    p = (np.pi if z < 0.0 else 0.0) + z
+    h = np.floor(np.sqrt(x / _HALF_PI * _NH * _NH))
+    h = h if h < _NH - 1.0 else _NH - 1.0
+    d = np.floor(y / _HALF_PI * _ND)
+    d = d if d < _ND - 1.0 else _ND - 1.0
+    p = np.floor(p / np.pi * _NP)
+    p = p if p < _NP - 1.0 else _NP - 1.0
+    flat = (h * _ND + d) * _NP + p
+    return int(flat) if ok else SLOW
+
+
 @njit(**_JIT)
 def _merl_block(th, td, pd, a, out, scale):  # pragma: no cover - compiled
     """Flat MERL index of samples ``a + j`` into ``out[j]``, angles times ``scale`` in radians
@@ -72,24 +102,11 @@ def _merl_block(th, td, pd, a, out, scale):  # pragma: no cover - compiled
     """
     n_slow = 0
     for j in range(out.size):
-        x = th[a + j] * scale
-        y = td[a + j] * scale
-        z = pd[a + j] * scale
-        ok = (x >= 0.0) & (x <= _HALF_PI) & (y >= 0.0) & (y <= _HALF_PI)
-        ok = ok & (z > -np.pi) & (z <= np.pi)
-        p = (np.pi if z < 0.0 else 0.0) + z
-        h = np.floor(np.sqrt(x / _HALF_PI * _NH * _NH))
-        h = h if h < _NH - 1.0 else _NH - 1.0
-        d = np.floor(y / _HALF_PI * _ND)
-        d = d if d < _ND - 1.0 else _ND - 1.0
-        p = np.floor(p / np.pi * _NP)
-        p = p if p < _NP - 1.0 else _NP - 1.0
-        flat = (h * _ND + d) * _NP + p
-        out[j] = int(flat) if ok else -3
-        n_slow += 0 if ok else 1
+        out[j] = _merl_inside(th[a + j] * scale, td[a + j] * scale, pd[a + j] * scale)
+        n_slow += 1 if out[j] == SLOW else 0
     if n_slow:
         for j in range(out.size):
-            if out[j] == -3:
+            if out[j] == SLOW:
                 out[j] = _merl_flat_rad(th[a + j] * scale, td[a + j] * scale, pd[a + j] * scale)
     return n_slow
 
@@ -155,6 +172,62 @@ def _merl_flat_vectors(wi, wo, i):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
+def pair_columns(wi, wo, a, m, scratch):  # pragma: no cover - compiled
+    """Rows a … a + m − 1 of wi and wo (N, 3) as the columns of scratch (6, ≥ m): loops that
+    read them with a stride of 3 do not vectorise."""
+    for j in range(m):
+        for q in range(3):
+            scratch[q, j] = wi[a + j, q]
+            scratch[3 + q, j] = wo[a + j, q]
+
+
+@njit(inline="always", **_JIT)
+def _spread(v):  # pragma: no cover - compiled
+    """(low, high) bounds of an angle computed by portable_trig around libm's value."""
+    e = abs(v) * GUARD_REL + 1e-300
+    return v - e, v + e
+
+
+@njit(**_JIT)
+def _merl_guarded(c, m, out):  # pragma: no cover - compiled
+    """Flat MERL index of the pairs in the columns of c, or SLOW: the half/difference angles
+    by :mod:`acquisition.tables.portable_trig` (vectorised), then the index at both ends of
+    each angle's error bound; where both agree (and both light and view are above the
+    horizon), libm's angle, which lies between, has that index too (the index is monotonic
+    in each angle, φd's jump at 0 aside, which the two ends see)."""
+    for j in range(m):
+        ix, iy, iz, ox, oy, oz = c[0, j], c[1, j], c[2, j], c[3, j], c[4, j], c[5, j]
+        hx = ix + ox
+        hy = iy + oy
+        hz = iz + oz
+        rho2 = hx * hx + hy * hy
+        norm = np.sqrt(hz * hz + rho2)
+        a = ix * hx + iy * hy
+        th = portable_trig.acos(_clip1(hz / norm))
+        td = portable_trig.acos(_clip1((iz * hz + a) / norm))
+        pd = portable_trig.atan2((iy * hx - ix * hy) * norm, a * hz - iz * rho2)
+        h0, h1 = _spread(th)
+        d0, d1 = _spread(td)
+        p0, p1 = _spread(pd)
+        lo = _merl_inside(h0, d0, p0)
+        hi = _merl_inside(h1, d1, p1)
+        above = (iz > 0.0) & (oz > 0.0) & (rho2 != 0.0)
+        out[j] = lo if (lo == hi) & above else SLOW
+
+
+@njit(**_JIT)
+def merl_block_vectors(wi, wo, a, m, scratch, out):  # pragma: no cover - compiled
+    """Flat MERL index of pairs a … a + m − 1 (m ≤ PAIR_BLOCK) into out[:m], equal to
+    :func:`_merl_flat_vectors`'s: vectorised and guarded (:func:`_merl_guarded`), libm's
+    arithmetic for the few near a bin edge (and NaN, below the horizon, straight up)."""
+    pair_columns(wi, wo, a, m, scratch)
+    _merl_guarded(scratch, m, out)
+    for j in range(m):
+        if out[j] == SLOW:
+            out[j] = _merl_flat_vectors(wi, wo, a + j)
+
+
+@njit(**_JIT)
 def _rotate(v0, v1, v2, a0, a1, a2, angle):  # pragma: no cover - compiled
     """Rodrigues rotation with every term (zeros included) in the reference's order."""
     c = math.cos(angle)
@@ -205,8 +278,10 @@ def _merl_flat_angles(ti_deg, tr_deg, dp_deg):  # pragma: no cover - compiled
 @njit(**_JIT)
 def merl_flat_index_vectors(wi, wo, out):  # pragma: no cover - compiled
     """Flat MERL index per light/view pair into ``out`` (what :func:`merl_add_vectors` bins)."""
-    for i in range(wi.shape[0]):
-        out[i] = _merl_flat_vectors(wi, wo, i)
+    scratch = np.empty((6, PAIR_BLOCK))
+    for a in range(0, wi.shape[0], PAIR_BLOCK):
+        m = min(PAIR_BLOCK, wi.shape[0] - a)
+        merl_block_vectors(wi, wo, a, m, scratch, out[a:])
 
 
 @njit(**_JIT)

@@ -1,0 +1,32 @@
+"""Stale numba caches of kernels that call compiled functions of other files.
+
+numba's on-disk cache (``cache=True``) is invalidated by a change to a function's own file
+only; a kernel that calls (and so compiles in) a function of another file would run stale
+machine code after an edit there. A module whose kernels do calls :func:`drop_stale_cache` on
+import, before numba loads anything: when the sources of the files it depends on differ from
+those its cached code was compiled with (a digest kept beside the cache), that cache is deleted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable
+from pathlib import Path
+
+
+def drop_stale_cache(module_file: str | Path, dependencies: Iterable[str | Path]) -> None:
+    """Delete ``module_file``'s cached machine code (``__pycache__/<stem>.*.nbi|nbc``) when a
+    dependency's source changed since it was compiled."""
+    here = Path(module_file).resolve()
+    digest = hashlib.sha256(b"".join(Path(p).read_bytes() for p in dependencies)).hexdigest()
+    cache = here.parent / "__pycache__"
+    stamp = cache / f"{here.stem}.deps"
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for old in cache.glob(f"{here.stem}.*.nb[ic]"):
+            old.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:  # a read-only install: numba caches elsewhere (or not at all)
+        pass

@@ -5,7 +5,7 @@ The reference path (:func:`acquisition.reduction.image.bin_frames` through the t
 ``add`` methods) makes ~10 passes over a frame: MERL indices, values; poses, isotropic
 indices, Δφ folded, the budget's terms joined into one array, range checks, value and budget
 sums. Here each sample is read once: its pose (:func:`pose_kernels.block_poses`, vectorised),
-its bins (:func:`acquisition.tables.kernels._iso_flat`, ``merl_block_vectors``), and its value,
+its bins (:func:`acquisition.tables.kernels.iso_block`, ``merl_block_vectors``), and its value,
 value², budget terms, angles and angle products go block by block through the exact sums'
 own conversion and scatter (:mod:`acquisition.tables.exact_kernels`). Every value is computed
 by the same IEEE operations in the same order as the reference path, so the tables hold the
@@ -45,7 +45,7 @@ from numba import njit  # noqa: E402
 
 from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
 from acquisition.tables.exact_kernels import BLOCK, _convert, _room, _scatter, add_block  # noqa: E402
-from acquisition.tables.kernels import _iso_flat, _mod360, merl_block_vectors  # noqa: E402
+from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 DROP_NAN = -2
@@ -89,20 +89,20 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
     """Pose, isotropic bin, values and (``budget``) budget of each sample from ``start``,
     into the value store (``slot`` …, drops in ``tally`` as ``add_block``) and the budget
     store (``bslot`` …); returns where it stopped for room in either."""
-    n_bins, first = slot.size, ep[0]
+    n_bins = slot.size
     xv, xb = np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS)
-    bv, bb = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
+    bv, bb, bins = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
     f = np.empty((3, BLOCK * BUDGET_SUMS))
-    angles, scratch = np.empty((3, BLOCK)), np.empty((6, BLOCK))
+    angles, scratch = np.empty((4, BLOCK)), np.empty((6, BLOCK))
     for a in range(start, wi.shape[0], BLOCK):
         m = min(BLOCK, wi.shape[0] - a)
         if not (_room(m, slot, rows, used) and _room(m, bslot, brows, bused)):
             return a
         nv = nb = 0
         block_poses(wi, wo, a, m, scratch, angles[0], angles[1], angles[2])
+        iso_block(angles[0], angles[1], angles[2], m, ei, er, ep, fold, bins, angles[3])
         for i in range(a, a + m):
-            ti, tr, dp = angles[0, i - a], angles[1, i - a], angles[2, i - a]
-            b = _iso_flat(ti, tr, dp, ei, er, ep, fold, first)
+            ti, tr, d, b = angles[0, i - a], angles[1, i - a], angles[3, i - a], bins[i - a]
             total = 0.0
             for c in range(3):
                 total += rgb[i, c]
@@ -117,11 +117,6 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
                 xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
             bv[nv] = b
             nv += 1
-            if fold:
-                d = _mod360(dp)
-                d = 360.0 - d if d > 180.0 else d
-            else:
-                d = first + _mod360(dp - first)
             if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
                 bb[nb] = b
                 nb += 1

@@ -350,10 +350,72 @@ def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compil
     return (ii * (er.size - 1) + ir) * (ep.size - 1) + ip
 
 
+UNEVEN = 1e-6
+"""Edges further than this (in bins) from evenly spaced: every sample takes the scalar path."""
+
+
+@njit(**_JIT)
+def axis_spacing(edges):  # pragma: no cover - compiled
+    """(first edge, bins per unit, guard in bins) of an axis for :func:`_axis_guess`: the
+    guard is how far (in bins) the edges stray from evenly spaced, plus 1e-9 for rounding;
+    1 (nothing passes) past :data:`UNEVEN`."""
+    n = edges.size - 1
+    step = (edges[n] - edges[0]) / n
+    stray = 0.0
+    for k in range(n + 1):
+        stray = max(stray, abs(edges[k] - (edges[0] + k * step)) / step)
+    return edges[0], n / (edges[n] - edges[0]), (stray + 1e-9 if stray <= UNEVEN else 1.0)
+
+
+@njit(inline="always", **_JIT)
+def _axis_guess(v, first, per_unit, guard, n):  # pragma: no cover - compiled
+    """Bin of ``v`` (:func:`_axis_index`'s) from arithmetic alone, where v is more than
+    ``guard`` bins from every edge (g's rounding, ~1e-13 bins, is well inside the guard;
+    within it the edges may stray from evenly spaced, on the same side of v); else −1, and
+    the scalar path decides (edges, NaN, outside). Branch-free: no gathers."""
+    g = (v - first) * per_unit
+    k = np.floor(g)
+    frac = g - k
+    clear = (frac > guard) & (frac < 1.0 - guard) & (k >= 0.0) & (k < n)
+    return int(k) if clear else -1
+
+
+@njit(**_JIT)
+def iso_block(ti, tr, dp, m, ei, er, ep, fold, bins, delta):  # pragma: no cover - compiled
+    """Flat isotropic bin (:func:`_iso_flat`, the same index and drop codes) and the Δφ it
+    bins on (folded into [0, 180] or brought into [ep[0], ep[0] + 360)) of samples j < m:
+    a vectorised pass, then :func:`_iso_flat` for the few it leaves (see _axis_guess)."""
+    start = ep[0]
+    ni, nr, npd = ei.size - 1, er.size - 1, ep.size - 1
+    i0, iu, ig = axis_spacing(ei)
+    r0, ru, rg = axis_spacing(er)
+    p0, pu, pg = axis_spacing(ep)
+    for j in range(m):
+        x = dp[j] if fold else dp[j] - start
+        w = x + 360.0 if x < 0.0 else x  # _mod360 for |x| < 360, +0 for ±0
+        w = 0.0 if w == 0.0 else w
+        w = 360.0 - w if fold & (w > 180.0) else w
+        d = w if fold else start + w
+        ii = _axis_guess(ti[j], i0, iu, ig, ni)
+        ir = _axis_guess(tr[j], r0, ru, rg, nr)
+        ip = _axis_guess(d, p0, pu, pg, npd)
+        fast = (ii >= 0) & (ir >= 0) & (ip >= 0) & (x > -360.0) & (x < 360.0)
+        bins[j] = (ii * nr + ir) * npd + ip if fast else SLOW
+        delta[j] = d
+    for j in range(m):
+        if bins[j] == SLOW:
+            bins[j] = _iso_flat(ti[j], tr[j], dp[j], ei, er, ep, fold, start)
+            x = dp[j] if fold else dp[j] - start
+            w = _mod360(x)
+            w = 360.0 - w if fold and w > 180.0 else w
+            delta[j] = w if fold else start + w
+
+
 @njit(**_JIT)
 def iso_flat_index(ti, tr, dp, ei, er, ep, fold, out):  # pragma: no cover - compiled
     """Flat isotropic bin index per sample into ``out`` (what :func:`iso_add` bins)."""
-    start = ep[0]
-    for i in range(ti.size):
-        out[i] = _iso_flat(ti[i], tr[i], dp[i], ei, er, ep, fold, start)
+    delta = np.empty(PAIR_BLOCK)
+    for a in range(0, ti.size, PAIR_BLOCK):
+        m = min(PAIR_BLOCK, ti.size - a)
+        iso_block(ti[a:], tr[a:], dp[a:], m, ei, er, ep, fold, out[a:], delta)
 

@@ -1,4 +1,4 @@
-"""The vectorised bin indices of acquisition.tables.kernels equal the scalar paths they guard
+"""The vectorised kernels of acquisition.tables equal the scalar paths they guard or replace
 bit for bit: the MERL index (portable trig, libm's within 1e-13 of an edge) and the isotropic
 index (arithmetic on evenly spaced edges, the edge search elsewhere)."""
 
@@ -107,3 +107,16 @@ def test_vectorised_isotropic_index_equals_edge_search(edges: str, fold: bool) -
         assert kernels.axis_spacing(ei)[2] == 1.0
     else:
         assert kernels.axis_spacing(ei)[2] < 1e-8
+
+
+def test_max_finite_abs_by_bit_patterns_equals_numpy() -> None:
+    from acquisition.tables.exact_kernels import max_finite_abs
+
+    rng = np.random.default_rng(9)
+    a = rng.normal(size=(10_000, 3)) * 10.0 ** rng.uniform(-320, 300, (10_000, 3))
+    a[5, 1], a[7, 2], a[9, 0], a[11, 1] = math.inf, math.nan, -math.inf, -0.0
+    assert max_finite_abs(a) == np.max(np.abs(a[np.isfinite(a)]))
+    assert max_finite_abs(a[:, :2]) == np.max(np.abs(a[:, :2][np.isfinite(a[:, :2])]))
+    assert max_finite_abs(np.full((2, 3), math.nan)) == 0.0
+    assert max_finite_abs(np.array([[-3.0, 2.0, math.inf]])) == 3.0
+    assert max_finite_abs(np.array([[5e-324, -0.0, 0.0]])) == 5e-324

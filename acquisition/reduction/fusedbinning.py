@@ -61,7 +61,7 @@ def fits(table: IsotropicTable, merl: MerlTable) -> bool:
 def _largest(a: np.ndarray) -> float:
     from acquisition.tables.exact_kernels import max_finite_abs
 
-    return float(max_finite_abs(a.reshape(-1, a.shape[-1]))) if a.size else 0.0
+    return float(max_finite_abs(np.asarray(a, np.float64).reshape(-1, a.shape[-1]))) if a.size else 0.0
 
 
 def budget_in_range(brdf: np.ndarray, variance: np.ndarray | None, rel: np.ndarray) -> bool:

@@ -167,3 +167,19 @@ def test_a_scatter_far_above_noise_is_explained(ratio: float, hint: bool) -> Non
     _, lines = _reduce_report(Path("t.h5"), result)  # type: ignore[arg-type]
     assert f"repeats scatter {ratio:.2f}× the noise prediction over 261 bins" in lines[-1]
     assert (SCATTER_HINT in lines[-1]) == hint
+
+
+@pytest.mark.parametrize(("references", "said"), [(1, "drift not measured (one reference frame)"),
+                                                  (3, "drift 0.10 %")])
+def test_drift_is_not_claimed_from_one_reference(references: int, said: str) -> None:
+    """One white-reference frame has no drift to show: the reduce line says so, not 0.00 %."""
+    from types import SimpleNamespace
+
+    from acquisition.cli.capture import _reduce_report
+
+    table = SimpleNamespace(count=np.array([3, 0]), tracks_uncertainty=False,
+                            provenance={}, scatter=(1.0, 0))
+    result = SimpleNamespace(table=table, frames=4, drift_pct=0.1 if references > 1 else 0.0,
+                             references=references)
+    _, lines = _reduce_report(Path("t.h5"), result)  # type: ignore[arg-type]
+    assert said in lines[0]

@@ -41,7 +41,9 @@ def test_session_info_tracks_an_interrupted_then_resumed_capture(
     assert "3/7 steps done" in text and f"gonio resume {out}" in text
     assert "interrupted by the operator" in text
 
-    api.resume(out)
+    assert main(["resume", str(out), "--no-reduce"]) == 0
+    said = capsys.readouterr().out  # the whole session's steps; this run's own rig time
+    assert "7 steps done; this run took" in said and "s of rig time" in said
     st = session_status(out)
     assert (st.done, st.total, st.runs) == (7, 7, 2)
     assert st.drift_pct is not None and 0 <= st.drift_pct < 2  # a steady simulated lamp
@@ -73,3 +75,10 @@ def test_table_info_reports_coverage_units_provenance(
     text = capsys.readouterr().out
     assert "MERL binary" in text and "729000 measured bins, 50.0 %" in text
     assert "0.5 … 0.5 sr⁻¹" in text
+
+
+def test_info_of_a_missing_path_names_every_kind_it_reads(tmp_path, capsys) -> None:
+    assert main(["info", str(tmp_path / "nowhere")]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "does not exist" in err
+    assert "session folder" in err and ".h5" in err and "MERL" in err

@@ -107,7 +107,8 @@ def remaining_line(predicted: dict[int, float]) -> str:
 
 def _report(args: argparse.Namespace, result: api.CaptureResult) -> int:
     counts = result.counts
-    device = f" in {result.device_seconds:.1f} s of rig time" if result.device_seconds else ""
+    device = (f"; this run took {result.device_seconds:.1f} s of rig time"
+              if result.device_seconds else "")  # a resumed run's own time, not the session's
     payload = {"session": result.session.path, "counts": counts,
                "device_seconds": result.device_seconds}
     lines = [f"session {result.session.path}: {counts.get('done', 0)} steps done{device}"]
@@ -217,8 +218,9 @@ def _reduce_report(out: Path, result: api.Reduction) -> tuple[dict[str, object],
     measured = int((table.count > 0).sum())
     rel = api.median_relative_uncertainty(table)
     ratio, repeats = table.scatter
-    lines = [f"{out}: {result.frames} frames → {measured} measured bins; "
-             f"white reference drift {result.drift_pct:.2f} %"]
+    drift = (f"white reference drift {result.drift_pct:.2f} %" if result.references != 1
+             else "white reference drift not measured (one reference frame)")
+    lines = [f"{out}: {result.frames} frames → {measured} measured bins; {drift}"]
     resumed = getattr(result, "resumed_frames", 0)
     if resumed:
         lines.insert(0, f"resumed: {resumed} frames from the checkpoint of an interrupted run")

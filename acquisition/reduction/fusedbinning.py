@@ -21,9 +21,10 @@ from acquisition.tables.exact import ExactSums
 from acquisition.tables.fixedpoint import VALUE_LIMIT
 from acquisition.tables.uncertainty import ANGLE_LIMIT
 
-HELPER_SHARE = 0.3
+HELPER_SHARE = 0.2
 """Share of the isotropic table's samples the helper thread bins after the MERL table (which
-costs about half as much per sample): the two threads then finish about together."""
+costs about 0.6 of the isotropic table per sample, its budget included): the two threads then
+finish about together (1 − s = 0.6 + s)."""
 HELPER_FROM_SAMPLES = 1 << 15
 """Frames of fewer samples are binned on the calling thread alone (:func:`helper_for`): handing
 work to the helper thread costs more than it saves there (a light-stage frame of ≈ 1,900

@@ -63,7 +63,7 @@ def _poisson_small(mu: float, limit: float, stream: np.uint64, k: int) -> tuple[
 def _poisson_ptrs(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
     """Poisson(μ ≥ 10) by transformed rejection with squeeze (Hörmann 1993, PTRS)."""
     slam = math.sqrt(mu)
-    loglam = math.log(mu)
+    loglam = 0.0  # log μ (> 2.3), computed when a draw first needs it: most never do
     b = 0.931 + 2.53 * slam
     a = -0.059 + 0.02483 * b
     inv_alpha = 1.1239 + 1.1328 / (b - 3.4)
@@ -78,6 +78,8 @@ def _poisson_ptrs(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
             return count, k
         if count < 0.0 or (us < 0.013 and v > us):
             continue
+        if loglam == 0.0:
+            loglam = math.log(mu)
         if (math.log(v) + math.log(inv_alpha) - math.log(a / (us * us) + b)
                 <= -mu + count * loglam - math.lgamma(count + 1.0)):
             return count, k

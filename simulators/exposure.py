@@ -46,9 +46,9 @@ def _uniform(stream: np.uint64, k: int) -> float:
 
 
 @numba.njit(cache=True)
-def _poisson_small(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
-    """Poisson(μ < 10) by multiplying uniforms (Knuth); returns (count, next draw index)."""
-    limit = math.exp(-mu)
+def _poisson_small(mu: float, limit: float, stream: np.uint64, k: int) -> tuple[float, int]:
+    """Poisson(μ < 10) by multiplying uniforms (Knuth) down to ``limit`` = exp(−μ); returns
+    (count, next draw index)."""
     count = 0.0
     product = _uniform(stream, k)
     k += 1
@@ -63,7 +63,7 @@ def _poisson_small(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
 def _poisson_ptrs(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
     """Poisson(μ ≥ 10) by transformed rejection with squeeze (Hörmann 1993, PTRS)."""
     slam = math.sqrt(mu)
-    loglam = math.log(mu)
+    loglam = 0.0  # log μ (> 2.3), computed when a draw first needs it: most never do
     b = 0.931 + 2.53 * slam
     a = -0.059 + 0.02483 * b
     inv_alpha = 1.1239 + 1.1328 / (b - 3.4)
@@ -78,15 +78,18 @@ def _poisson_ptrs(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
             return count, k
         if count < 0.0 or (us < 0.013 and v > us):
             continue
+        if loglam == 0.0:
+            loglam = math.log(mu)
         if (math.log(v) + math.log(inv_alpha) - math.log(a / (us * us) + b)
                 <= -mu + count * loglam - math.lgamma(count + 1.0)):
             return count, k
 
 
 @numba.njit(cache=True, inline="always")
-def _pixel_dn(mu: float, stream: np.uint64, full_well_e: float, inv_gain: float,
+def _pixel_dn(mu: float, limit: float, stream: np.uint64, full_well_e: float, inv_gain: float,
               sigma_dn: float, black_dn: float, adc_max: float) -> float:
-    """One pixel's raw value (DN) for an expected charge ``mu`` (e⁻)."""
+    """One pixel's raw value (DN) for an expected charge ``mu`` (e⁻); ``limit`` = exp(−μ)
+    (used below 10 e⁻)."""
     r = math.sqrt(-2.0 * math.log(_uniform(stream, 0)))
     angle = _TWO_PI * _uniform(stream, 1)
     if mu >= EXACT_POISSON_BELOW_E:
@@ -94,7 +97,7 @@ def _pixel_dn(mu: float, stream: np.uint64, full_well_e: float, inv_gain: float,
     elif mu >= 10.0:
         charge = _poisson_ptrs(mu, stream, 2)[0]
     else:
-        charge = _poisson_small(mu, stream, 2)[0]
+        charge = _poisson_small(mu, limit, stream, 2)[0]
     dn = min(charge, full_well_e) * inv_gain + sigma_dn * r * math.sin(angle) + black_dn
     return min(max(math.floor(dn + 0.5), 0.0), adc_max)
 
@@ -148,6 +151,8 @@ def _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s, fu
     cap = 4.0 * full_well_e + 1e3  # beyond the full well all clips: keeps the draws finite
     inv_gain = 1.0 / gain_e_per_dn
     ar = r - top
+    last_mu = -1.0
+    limit = 1.0
     for c in range(cols):
         ac = c - left
         mu = dark_e_per_s
@@ -155,5 +160,9 @@ def _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s, fu
             colour = (ar & 1) + (ac & 1)  # RGGB: R 0, G 1, B 2
             mu += radiance[ar >> 1, ac >> 1, colour] * response[ar, ac]
         stream = _mix(key ^ (np.uint64(r * cols + c) * _GAMMA))
-        out[r, c] = np.uint16(_pixel_dn(min(mu * exposure_s, cap), stream, full_well_e,
+        mu = min(mu * exposure_s, cap)
+        if mu != last_mu and not mu >= 10.0:  # exp(−μ) once per run of equal μ (dark pixels)
+            last_mu = mu
+            limit = math.exp(-mu)
+        out[r, c] = np.uint16(_pixel_dn(mu, limit, stream, full_well_e,
                                         inv_gain, sigma_dn, black_dn, float(adc_max)))

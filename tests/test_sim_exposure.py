@@ -80,3 +80,19 @@ def test_pixels_are_independent() -> None:
     for a, b in ((d[:, 1:], d[:, :-1]), (d[1:], d[:-1])):
         r = (a * b).mean() / d.var()
         assert abs(r) < 5 / np.sqrt(a.size), r
+
+
+def test_a_pixel_depends_on_its_own_radiance_alone() -> None:
+    """Pixels that see the same radiance in two frames get the same bits whatever their
+    neighbours see (dark next to lit in every regime: the kernel reuses exp(−μ) over runs of
+    equal μ and must never carry it over to another μ)."""
+    sensor = SensorModel(width=400, height=300, prnu_sigma=0.01, dark_current_e_per_s=40.0)
+    rng = np.random.default_rng(4)
+    dark = np.zeros((*sensor.superpixel_shape, 3))
+    lit = dark.copy()
+    spots = rng.random(sensor.superpixel_shape) < 0.3
+    lit[spots] = rng.choice([1e-6, 2e-4, 3e-3, 0.05, 2.0], size=(int(spots.sum()), 3))
+    frames = [sensor.expose(r, 0.05, 100, frame_seed=9) for r in (dark, lit)]
+    same = ~np.repeat(np.repeat(spots, 2, axis=0), 2, axis=1)
+    np.testing.assert_array_equal(frames[0][same], frames[1][same])
+    assert not np.array_equal(frames[0][~same], frames[1][~same])

@@ -162,6 +162,30 @@ def to_local(frames: np.ndarray, world: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nj->ni", frames, world)
 
 
+@dataclass(frozen=True)
+class TargetSurface:
+    """The surface a render sees: a sphere of radius ``size_m`` about ``centre_m`` (m), or
+    the square plate of edge ``size_m`` centred at ``centre_m`` in the plane z = centre z."""
+
+    sphere: bool
+    centre_m: np.ndarray
+    size_m: float
+
+
+def target_surface(rig: RigConfig, target_shape: str | None = None, height_m: float = 0.0
+                   ) -> TargetSurface:
+    """The rig's sample (``target_shape="flat"``: the white plate) raised by ``height_m``
+    (m); raises ConfigError for an unknown shape."""
+    sample = rig.sample
+    kind = target_shape or sample.shape
+    if kind == "flat":
+        return TargetSurface(False, np.array([0.0, 0.0, height_m]), float(sample.size_m))
+    if kind == "sphere":
+        centre = np.asarray(sample.centre_m, dtype=np.float64) + [0.0, 0.0, height_m]
+        return TargetSurface(True, centre, float(sample.radius_m))
+    raise ConfigError(f"sample shape '{kind}' is unknown: use 'flat' or 'sphere'")
+
+
 # ---------------------------------------------------------------------------- what a pixel sees
 @dataclass(frozen=True)
 class SurfaceView:
@@ -205,18 +229,14 @@ def surface_view(rig: RigConfig, camera_dir: np.ndarray, shape: tuple[int, int],
     """What the rig's camera along ``camera_dir`` sees of the sample (``target_shape="flat"``:
     of the flat white plate), pointed by ``pointing_deg`` (deg), the sample ``height_m`` (m)
     above its nominal place."""
-    sample = rig.sample
     origin, rays = camera_rays(rig, camera_dir, shape, pointing_deg)
-    kind = target_shape or sample.shape
-    if kind == "flat":
-        hit, points = ray_plane(origin, rays, height_m, sample.size_m)
-        frames = np.broadcast_to(np.eye(3), (len(points), 3, 3))
-    elif kind == "sphere":
-        centre = np.asarray(sample.centre_m, dtype=np.float64) + [0.0, 0.0, height_m]
-        hit, points, normals = ray_sphere(origin, rays, centre, sample.radius_m)
+    surface = target_surface(rig, target_shape, height_m)
+    if surface.sphere:
+        hit, points, normals = ray_sphere(origin, rays, surface.centre_m, surface.size_m)
         frames = shading_frames(normals)
     else:
-        raise ConfigError(f"sample shape '{kind}' is unknown: use 'flat' or 'sphere'")
+        hit, points = ray_plane(origin, rays, height_m, surface.size_m)
+        frames = np.broadcast_to(np.eye(3), (len(points), 3, 3))
     to_camera = origin - points
     to_camera /= np.sqrt(np.einsum("nk,nk->n", to_camera, to_camera))[:, None]
     wo = to_local(frames, to_camera)

@@ -43,6 +43,7 @@ from acquisition.config.toml import Section
 from acquisition.simworld.misalignment import IMAGE_SOURCE_POINTS, TrueGeometry
 from acquisition.simworld.optics import SurfaceView, surface_view
 from simulators.clock import SimClock
+from simulators.material_kernels import packed_material
 from simulators.materials import Lambert, Material, material_from_spec
 
 SAMPLE_MARGIN_SUPERPIXELS = 4
@@ -189,12 +190,39 @@ def render_image(
 
     ``light_points`` (m, 3): the lamp as points sharing its intensity (default: a point at
     the light's distance); ``pointing_deg``: the camera's pointing error; ``sample_height_m``:
-    the sample (and plate) above its nominal place, m."""
+    the sample (and plate) above its nominal place, m. Analytic materials are rendered by the
+    compiled renderer (:mod:`acquisition.simworld.render_kernel`), others by
+    :func:`render_image_numpy`."""
     points = (np.asarray(light_dir, float)[None] * rig.light_distance_m if light_points is None
               else light_points)
+    packed = packed_material(material)
+    if packed is not None:  # the compiled renderer (one pass, no per-pixel arrays)
+        from acquisition.simworld.render_kernel import render_frame
+
+        return render_frame(rig, camera_dir, shape_superpixels, target_shape, points, packed,
+                            rig.light_intensity_w_per_sr, pointing_deg=pointing_deg,
+                            height_m=sample_height_m)
+    return render_image_numpy(rig, camera_dir, material, shape_superpixels, target_shape,
+                              points, pointing_deg=pointing_deg, sample_height_m=sample_height_m)
+
+
+def render_image_numpy(
+    rig: RigConfig,
+    camera_dir: np.ndarray,
+    material: Material,
+    shape_superpixels: tuple[int, int],
+    target_shape: str | None,
+    light_points: np.ndarray,
+    *,
+    pointing_deg: tuple[float, float] = (0.0, 0.0),
+    sample_height_m: float = 0.0,
+) -> np.ndarray:
+    """:func:`render_image` by the numpy path (:func:`surface_view`, :func:`render_view`):
+    the compiled renderer's reference, and the renderer of materials without a compiled
+    evaluator (measured ones)."""
     view = surface_view(rig, camera_dir, shape_superpixels, target_shape,
                         pointing_deg=pointing_deg, height_m=sample_height_m)
-    return render_view(view, points, material, rig.light_intensity_w_per_sr)
+    return render_view(view, light_points, material, rig.light_intensity_w_per_sr)
 
 
 def render_view(view: SurfaceView, light_points: np.ndarray, material: Material,
@@ -226,12 +254,17 @@ def make_image_scene(
                 image[:] = truth.radiance(true_joints(), holder.white,
                                           rig.light_intensity_w_per_sr * holder.lamp())
             return image
+        lamp = holder.lamp()
+        if lamp == 0.0:  # the lamp is off: a dark frame
+            return np.zeros((*shape_superpixels, 3))
         light, camera = truth.directions(true_joints())
         target = None if holder.current == "sample" else "flat"
         image = render_image(rig, light, camera, holder.material, shape_superpixels, target,
                              light_points=truth.light_points(light, IMAGE_SOURCE_POINTS),
                              pointing_deg=errors.camera_pointing_deg,
                              sample_height_m=errors.sample_height_m)
-        return image * holder.lamp()
+        if lamp != 1.0:
+            image *= lamp
+        return image
 
     return scene

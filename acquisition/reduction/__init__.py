@@ -4,7 +4,8 @@ sample was taken, its angular uncertainty, the live estimate, and reduction on a
 (``distributed``: the optional extra ``gonio[distributed]``, imported only when asked for).
 
 May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
-``acquisition.tables``, ``acquisition.formats``, ``calibration``, ``drivers.errors``.
+``acquisition.tables``, ``acquisition.formats``, ``acquisition.numba_cache``, ``calibration``,
+``drivers.errors``.
 """
 
 CHECKPOINT_EVERY = 10

@@ -25,39 +25,18 @@ compiled with, this module's cached code is deleted first (:func:`_forget_stale_
 
 from __future__ import annotations
 
-import hashlib
 import math
-from pathlib import Path
 
 import numba
 import numpy as np
 
 import simulators.material_kernels as material_kernels
 from acquisition.config.rig import RigConfig
+from acquisition.numba_cache import drop_stale_cache
 from acquisition.simworld.optics import camera_axes, intrinsics_of, pointed_axes, target_surface
 from simulators.exposure import PARALLEL_MIN_PIXELS
 
-_HERE = Path(__file__).resolve()
-
-
-def _forget_stale_code() -> None:
-    """Delete this module's cached machine code when :mod:`simulators.material_kernels`
-    changed since it was compiled (its source's digest is kept beside the cache). Numba reads
-    its cache at a kernel's first call, after this has run."""
-    digest = hashlib.sha256(Path(material_kernels.__file__).read_bytes()).hexdigest()
-    cache = _HERE.parent / "__pycache__"
-    stamp = cache / f"{_HERE.stem}.materials-digest"
-    try:
-        if not (stamp.is_file() and stamp.read_text() == digest):
-            for old in cache.glob(f"{_HERE.stem}.*.nb[ic]"):
-                old.unlink(missing_ok=True)
-            cache.mkdir(exist_ok=True)
-            stamp.write_text(digest)
-    except OSError:  # a read-only install: numba caches elsewhere (or not at all)
-        pass
-
-
-_forget_stale_code()
+drop_stale_cache(__file__, (material_kernels.__file__,))  # numba sees this file only
 accumulate_packed = material_kernels.accumulate_packed
 
 PARALLEL_MIN_SUPERPIXELS = PARALLEL_MIN_PIXELS // 4

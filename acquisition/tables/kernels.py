@@ -135,22 +135,27 @@ def _clip1(x):  # pragma: no cover - compiled
     return 1.0 if x > 1.0 else (-1.0 if x < -1.0 else x)
 
 
-@njit(**_JIT)
-def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
-    """(θh, θd, φd) in radians, operation for operation as
-    :func:`acquisition.geometry.halfdiff.halfdiff_rad_from_vectors`."""
+@njit(inline="always", **_JIT)
+def _halfdiff_args(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
+    """(cos θh, cos θd, clipped into [−1, 1]; φd's atan2 arguments y, x (for ρ² ≠ 0); ρ² of
+    the half vector) of a light/view pair, the reference's arithmetic
+    (:func:`acquisition.geometry.halfdiff.halfdiff_rad_from_vectors`)."""
     hx = ix + ox
     hy = iy + oy
     hz = iz + oz
     rho2 = hx * hx + hy * hy
-    norm = math.sqrt(hz * hz + rho2)
+    norm = np.sqrt(hz * hz + rho2)
     a = ix * hx + iy * hy
-    cos_h = _clip1(hz / norm)
-    cos_d = _clip1((iz * hz + a) / norm)
-    if rho2 == 0.0:
-        phi_d = math.atan2(iy, ix * cos_h)
-    else:
-        phi_d = math.atan2((iy * hx - ix * hy) * norm, a * hz - iz * rho2)
+    return (_clip1(hz / norm), _clip1((iz * hz + a) / norm), (iy * hx - ix * hy) * norm,
+            a * hz - iz * rho2, rho2)
+
+
+@njit(**_JIT)
+def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
+    """(θh, θd, φd) in radians, operation for operation as
+    :func:`acquisition.geometry.halfdiff.halfdiff_rad_from_vectors`."""
+    cos_h, cos_d, y, x, rho2 = _halfdiff_args(ix, iy, iz, ox, oy, oz)
+    phi_d = math.atan2(iy, ix * cos_h) if rho2 == 0.0 else math.atan2(y, x)
     return math.acos(cos_h), math.acos(cos_d), phi_d
 
 
@@ -197,15 +202,10 @@ def _merl_guarded(c, m, out):  # pragma: no cover - compiled
     in each angle, φd's jump at 0 aside, which the two ends see)."""
     for j in range(m):
         ix, iy, iz, ox, oy, oz = c[0, j], c[1, j], c[2, j], c[3, j], c[4, j], c[5, j]
-        hx = ix + ox
-        hy = iy + oy
-        hz = iz + oz
-        rho2 = hx * hx + hy * hy
-        norm = np.sqrt(hz * hz + rho2)
-        a = ix * hx + iy * hy
-        th = portable_trig.acos(_clip1(hz / norm))
-        td = portable_trig.acos(_clip1((iz * hz + a) / norm))
-        pd = portable_trig.atan2((iy * hx - ix * hy) * norm, a * hz - iz * rho2)
+        cos_h, cos_d, y, x, rho2 = _halfdiff_args(ix, iy, iz, ox, oy, oz)
+        th = portable_trig.acos(cos_h)
+        td = portable_trig.acos(cos_d)
+        pd = portable_trig.atan2(y, x)
         h0, h1 = _spread(th)
         d0, d1 = _spread(td)
         p0, p1 = _spread(pd)

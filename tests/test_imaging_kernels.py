@@ -362,8 +362,8 @@ def test_a_count_that_disagrees_with_the_fill_stops_it(monkeypatch) -> None:
     count = sk.count_rows
 
     def off_by(delta):
-        def wrong(frame, spans, stop, per_task, counts):
-            count(frame, spans, stop, per_task, counts)
+        def wrong(frame, spans, bounds, counts):
+            count(frame, spans, bounds, counts)
             counts[np.flatnonzero(counts)[0]] += delta
         return wrong
 

@@ -384,15 +384,15 @@ def _threaded_samples(frame: tuple, var: np.ndarray | None,
     """:func:`pixel_samples` in ``blocks`` blocks of rows of about equal work: the rows before
     the last block are counted first (on all threads), so each block writes its own rows of
     the outputs, in row order; the last block's rows are bounded by its spans' pixels."""
+    import numba
+
     from acquisition.reduction import sample_kernels as sk
 
     width = spans[1] - spans[0]
-    work = np.cumsum(width)
-    bounds = np.searchsorted(work, work[-1] * np.arange(blocks + 1) / blocks, side="right")
-    bounds[0], bounds[-1] = 0, width.size
-    bounds = bounds.astype(np.int64)
+    bounds = _balanced(width, 0, width.size, blocks)
     counts = np.zeros(width.size, np.int64)
-    sk.count_rows(frame, spans, int(bounds[-2]), sk.ROWS_PER_TASK, counts)
+    sk.count_rows(frame, spans, _balanced(width, 0, int(bounds[-2]), numba.get_num_threads()),
+                  counts)
     before = np.concatenate([[0], np.cumsum(counts)])
     sizes = before[bounds[1:]] - before[bounds[:-1]]
     sizes[-1] = int(np.sum(width[bounds[-2]:]))
@@ -404,3 +404,13 @@ def _threaded_samples(frame: tuple, var: np.ndarray | None,
     if got[-1] < 0 or not np.array_equal(got[:-1], ends[:-1]):
         raise RuntimeError("per-pixel samples differ between their count and fill (a bug)")
     return out, var_out, int(got[-1])
+
+
+def _balanced(work: np.ndarray, first: int, stop: int, parts: int) -> np.ndarray:
+    """Row bounds (int64, ``parts`` + 1) splitting rows [first, stop) into parts of about equal
+    total ``work``."""
+    total = np.concatenate([[0], np.cumsum(work[first:stop])])
+    bounds = first + np.searchsorted(total, total[-1] * np.arange(parts + 1) / parts,
+                                     side="left")
+    bounds[0], bounds[-1] = first, stop
+    return np.minimum(bounds, stop).astype(np.int64)

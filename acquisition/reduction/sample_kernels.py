@@ -12,8 +12,9 @@ numpy path's operations in the same order):
   pixels (valid, seen, cos θi and cos θr ≥ the minimum) to the outputs in column order. The
   arithmetic is the per-pixel code's, operation for operation, in IEEE double with no
   fast-math: vector or scalar, every CPU rounds each operation the same way. Inputs are read
-  through 1-D rows starting at index 0 (no wrap-around test) and the buffer is only written in
-  the SIMD loops (a read-modify-write defeats the compiler's aliasing checks at run time).
+  through 1-D rows starting at index 0 (no wrap-around test; a 2-D row's run-time stride would
+  make the compiler's vector version bail out at run time), and no SIMD loop reads back what
+  it writes (its aliasing checks would fail).
 * Threads. :func:`count_rows` counts the kept pixels of the rows before the last block, so each
   block of rows knows where its samples start; :func:`fill_blocks` then fills the blocks at
   once, each into its own rows of the outputs. The blocks' outputs follow in row order: the
@@ -38,8 +39,6 @@ _JIT = k._JIT
 PARALLEL_MIN_CELLS = 1 << 16
 """Frames of fewer pixels are reduced on the calling thread: waking the thread pool costs more
 than it saves on them (as :data:`calibration.linearize_kernel.PARALLEL_MIN_CELLS`)."""
-ROWS_PER_TASK = 8
-"""Rows per task of the thread pool's counting pass."""
 BUFFER_ROWS = 14
 """Rows of a row's buffer: kept (1.0/0.0), wi (3), wo (3), cos θi / r², BRDF (3), variance (3)."""
 
@@ -167,21 +166,23 @@ def _brdf_row(rgb, variance, calibration, buf):  # pragma: no cover - compiled
 @numba.njit(**_JIT)
 def _emit(buf, valid, row, col0, out, var, n, end):  # pragma: no cover - compiled
     """Copy the kept valid pixels of a row (columns ``col0`` + j) to ``out`` (wi, wo, brdf,
-    rows, cols) and ``var`` (or None) from row ``n``; −1 if they pass ``end``."""
+    rows, cols) and ``var`` (or None) from row ``n``; −1 if they pass ``end``. The row index
+    is unsigned: no negative-index test per store."""
     wi, wo, brdf, rows, cols = out
+    u, stop, one = np.uint64(n), np.uint64(end), np.uint64(1)
     for j in range(valid.size):
         if buf[0, j] != 0.0 and valid[j]:
-            if n >= end:
+            if u >= stop:
                 return -1
-            wi[n, 0], wi[n, 1], wi[n, 2] = buf[1, j], buf[2, j], buf[3, j]
-            wo[n, 0], wo[n, 1], wo[n, 2] = buf[4, j], buf[5, j], buf[6, j]
-            brdf[n, 0], brdf[n, 1], brdf[n, 2] = buf[8, j], buf[9, j], buf[10, j]
+            wi[u, 0], wi[u, 1], wi[u, 2] = buf[1, j], buf[2, j], buf[3, j]
+            wo[u, 0], wo[u, 1], wo[u, 2] = buf[4, j], buf[5, j], buf[6, j]
+            brdf[u, 0], brdf[u, 1], brdf[u, 2] = buf[8, j], buf[9, j], buf[10, j]
             if var is not None:
-                var[n, 0], var[n, 1], var[n, 2] = buf[11, j], buf[12, j], buf[13, j]
-            rows[n] = row
-            cols[n] = col0 + j
-            n += 1
-    return n
+                var[u, 0], var[u, 1], var[u, 2] = buf[11, j], buf[12, j], buf[13, j]
+            rows[u] = row
+            cols[u] = col0 + j
+            u += one
+    return np.int64(u)
 
 
 @numba.njit(**_JIT)
@@ -223,12 +224,13 @@ def fill_serial(frame, variance, spans, out, var_out, end):  # pragma: no cover 
 
 
 @numba.njit(parallel=True, **_JIT)
-def count_rows(frame, spans, stop, rows_per_task, counts):  # pragma: no cover - compiled
-    """``counts[i]``: the samples of row i < ``stop``, on numba's threads."""
+def count_rows(frame, spans, bounds, counts):  # pragma: no cover - compiled
+    """``counts[i]``: the samples of row i, for the rows of the parts [bounds[t], bounds[t + 1])
+    (one per thread), on numba's threads."""
     p, xs, _, valid, _, min_cos = frame
     lo, hi = spans
-    for task in numba.prange((stop + rows_per_task - 1) // rows_per_task):
-        for i in range(task * rows_per_task, min(stop, (task + 1) * rows_per_task)):
+    for part in numba.prange(bounds.size - 1):
+        for i in range(bounds[part], bounds[part + 1]):
             a, b = lo[i], hi[i]
             counts[i] = 0 if a >= b else _count_row(p, xs[a:b], (i - p[k.CY]) / p[k.FY],
                                                      min_cos, valid[i, a:b])

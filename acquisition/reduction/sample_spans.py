@@ -6,26 +6,30 @@ are not computed and count as misses. That gives the same samples, bit for bit, 
 the floating-point test can call a hit lies in its row's span, which holds by construction:
 
 1. Float to exact. A pixel that the test (:mod:`.imaging_kernels`) calls a hit has a ray that,
-   computed exactly, meets a sample grown by a few ulps of the camera distance: the test's
-   rounding moves the ray's direction by a few ulps, the sphere's discriminant by ~64 ε |v|²
-   (v: camera to centre), the flat hit point by ~ε (|O| + h)² / height. The spans below are those
-   of the sample grown by :data:`ENLARGE` (sphere: r² + ENLARGE·|v|²; flat: half edge
-   h + ENLARGE·(|O| + h)), 10⁷ (sphere) to 10³ (flat, at the steepest grazing view culled)
-   times that rounding.
+   computed exactly, meets a slightly grown sample: the test's rounding (ε = 2⁻⁵³) moves the
+   ray's direction by a few ε, the sphere's discriminant by ~64 ε |v|² (v: camera to centre),
+   the flat hit point by ~10 ε (|O| + h)² / height (O: camera, h: half edge). The spans are
+   those of the sample grown by :data:`ENLARGE` (sphere: r² + ENLARGE·|v|²; flat: half edge
+   h + ENLARGE·(|O| + h)): over 10⁵ times that rounding, for every geometry culled (the flat
+   one's is largest at the lowest camera culled, :data:`GRAZING`).
 2. Exact span. The rays of a row are A + x·B (x = (column − cx)/fx, A = y·down + forward,
    B = right): those meeting the grown sphere solve a quadratic inequality in x, those meeting
    the grown square five linear ones (in front of the camera, inside the four edges); either
-   solution is one interval. Its double-precision rounding is at most ~1e-9 in x for the
-   geometries culled, far inside the enlargement: the sphere's discriminant exceeds 1e-8 |v|⁴
-   on every row with a hit, 10⁶ times its rounding.
+   solution is one interval. Its double-precision rounding is far inside the enlargement: on a
+   row with a hit the sphere's discriminant exceeds 1e-8 |v|⁴, some 10⁶ times its rounding
+   (the quadratic's leading coefficient is at most −:data:`DEGENERATE`·|v|²), so x is off by
+   ~1e-9 at most; the square's linear forms are off by ~ε of their terms, 10⁶ times less than
+   the enlargement moves them.
 3. Pixels. The interval maps to columns cx + fx·x, widened by :data:`MARGIN_PX` columns on
    each side plus 1e-6 of the column values, then clipped to the image.
 
 Where those conditions do not hold, whole rows are tested: a sphere whose row quadratic is
-nearly degenerate (its centre near the camera's x axis, the camera inside it or within a few
-radii beside it), a camera less than :data:`GRAZING` (relative) above the flat sample's plane, a
-zero or non-finite focal length, anything not finite. A flat sample seen from below its plane
-(camera z ≤ 0) has no hits in any row, as in the per-pixel test.
+nearly degenerate (its centre near the camera's x axis: the camera inside it, on it, or the
+sphere nearly beside the camera), a camera less than :data:`GRAZING` (relative) above the flat
+sample's plane, a zero or non-finite focal length, anything not finite. A flat sample seen from
+below its plane (camera z ≤ 0) has no hits in any row, as in the per-pixel test.
+tests/test_imaging_kernels.py checks that every hit lies inside its span with at least one of
+the two margin columns to spare, and that the spans exceed the hits by a few columns a row.
 """
 
 from __future__ import annotations

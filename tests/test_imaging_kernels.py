@@ -1,7 +1,11 @@
-"""The compiled per-pixel path (acquisition.reduction.imaging_kernels) against the numpy
-reference: the same geometry and the same BRDF samples, bit for bit, on random cameras, lights
-and samples (grazing views, the zenith, samples partly out of the image, light below the
-horizon), images with invalid and NaN pixels, with and without a noise variance; and the
+"""The compiled per-pixel paths (acquisition.reduction.imaging_kernels, and the row kernel of a
+frame's samples, sample_spans + sample_kernels) against the numpy reference and the per-pixel
+loop: the same geometry and the same BRDF samples, bit for bit, on random cameras, lights and
+samples (grazing views, the zenith, samples partly or wholly out of the image, light below the
+horizon), edge cases (camera inside, on or beside the sphere, looking away, flat sample seen
+edge-on or from below, mirrored and skewed cameras), images with invalid, NaN and infinite
+pixels, with and without a noise variance, on one thread or in blocks on the threads, and
+compiled for a generic x86-64; the spans hold every hit with margin and stay tight; and the
 isotropic table's single-index budget path against the numpy backend on samples on bin
 edges, NaN and out of range."""
 

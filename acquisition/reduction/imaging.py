@@ -351,7 +351,7 @@ def pixel_samples(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleCo
         out, var_out, n = _threaded_samples(frame, var, spans, blocks)
     for a in (*out, var_out):
         if a is not None:
-            a.resize((n, *a.shape[1:]), refcheck=False)  # in place: realloc shrinks
+            a.resize((n, *a.shape[1:]), refcheck=False)  # realloc: shrinking copies nothing
     wi, wo, brdf, rows, cols = out
     return wi, wo, brdf, var_out, (rows, cols)
 

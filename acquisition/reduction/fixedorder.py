@@ -5,9 +5,10 @@ kernels by CPU: ``einsum`` and ``@`` (OpenBLAS ``dgemv``/``ddot``, fused multipl
 Haswell and later, not on older cores) sum in orders, and round in places, that change with
 the machine. The reduction's per-sample values instead go through elementwise IEEE ``+ − × /``
 and √ only (correctly rounded everywhere, never fused across separate numpy calls), in the
-order written here; the compiled kernels (:mod:`acquisition.reduction.imaging_kernels`) do the
-same operations in the same order. tests/test_cpu_dispatch.py reduces a session under reduced
-CPU features and another OpenBLAS core and compares the tables bit for bit.
+order written here; the compiled kernels (:mod:`acquisition.reduction.imaging_kernels`,
+:mod:`acquisition.reduction.sample_kernels`) do the same operations in the same order.
+tests/test_cpu_dispatch.py reduces a session under reduced CPU features and another OpenBLAS
+core and compares the tables bit for bit.
 """
 
 from __future__ import annotations

@@ -250,9 +250,6 @@ class ImageReducer:
     ref_cals: np.ndarray
     ref_vars: np.ndarray
     min_cos: float = DEFAULT_MIN_COS
-    expected_samples: int = 0
-    """Samples the next frame is expected to give (the last frame's, with a margin): sizes
-    the compiled extraction's outputs (0: half the pixels)."""
 
     @classmethod
     def open(cls, session_dir: str | Path | SessionFolder,
@@ -367,8 +364,8 @@ class ImageReducer:
 
     def frame_samples(self, image: LinearImage, rec: StepRecord) -> FrameSamples:
         """:func:`frame_samples` of a linearized frame (journal row ``rec``), scaled by the
-        white reference interpolated at its step; with the numba backend in one compiled pass
-        per pixel (:func:`~acquisition.reduction.imaging.pixel_samples`: the same arrays)."""
+        white reference interpolated at its step; with the numba backend compiled, row by row
+        (:func:`~acquisition.reduction.imaging.pixel_samples`: the same arrays)."""
         calibration, calibration_rel = self.reference_at(rec.step)
         joints = rec.joints_read or rec.joints_cmd
         if resolve_backend() != "numba":
@@ -380,8 +377,7 @@ class ImageReducer:
                                      pointing_deg=self.model.pointing_deg)
         wi, wo, brdf, variance, pixels = pixel_samples(
             camera, light, self.rig.sample, image.rgb, image.valid, image.variance,
-            calibration, self.min_cos, self.expected_samples)
-        self.expected_samples = wi.shape[0] + wi.shape[0] // 8 + 1024
+            calibration, self.min_cos)
         return FrameSamples(rec.step, wi, wo, brdf, variance, calibration_rel, pixels,
                             image.valid.shape, joints)
 

@@ -321,22 +321,96 @@ and their pixels (rows, columns)."""
 
 def pixel_samples(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
                   rgb: np.ndarray, valid: np.ndarray, variance: np.ndarray | None,
-                  calibration: np.ndarray, min_cos: float, capacity: int = 0) -> SampleArrays:
+                  calibration: np.ndarray, min_cos: float, *, blocks: int = 0
+                  ) -> SampleArrays:
     """The BRDF samples f = P / (C · cos θi / r²) of an image's valid pixels that see the
     sample with cos θi, cos θr ≥ ``min_cos`` (``rgb``, ``variance``: (rows, columns, 3) in
-    DN/s and its square; ``calibration`` C (3,)), in one compiled pass per pixel: the same
-    arrays as :func:`pixel_geometry` then :func:`acquisition.reduction.image.frame_samples`,
-    bit for bit. ``capacity``: the samples expected (e.g. the previous frame's), to size the
-    outputs (default half the pixels)."""
-    from acquisition.reduction import imaging_kernels as k
+    DN/s and its square; ``calibration`` C (3,)), compiled (:mod:`.sample_kernels`): the
+    same arrays as :func:`pixel_geometry` then :func:`acquisition.reduction.image.frame_samples`,
+    bit for bit. Only each row's span of columns that can see the sample is computed
+    (:mod:`.sample_spans`). ``blocks``: the rows go to numba's threads in that many blocks
+    (1: on the calling thread); by default one per thread for frames of
+    :data:`~.sample_kernels.PARALLEL_MIN_CELLS` pixels or more, else 1."""
+    import numba
+
+    from acquisition.reduction import sample_kernels as sk
+    from acquisition.reduction.sample_spans import row_spans
 
     p = frame_parameters(camera, light_pos, sample)
-    var = np.zeros((0, 0, 3), np.float32) if variance is None else np.ascontiguousarray(variance)
-    cal = np.ascontiguousarray(calibration, dtype=np.float64)
-    rgb, valid = np.ascontiguousarray(rgb), np.ascontiguousarray(valid)
-    f64, i64 = np.float64, np.int64
-    wi, wo, brdf, var_out, rows, cols = collect(
-        lambda out, n, start: k.samples(p, rgb, valid, var, cal, float(min_cos), *out, n, start),
-        [((3,), f64), ((3,), f64), ((3,), f64), ((3,) if variance is not None else (0,), f64),
-         ((), i64), ((), i64)], valid.size, capacity or valid.size // 2)
-    return wi, wo, brdf, None if variance is None else var_out, (rows, cols)
+    valid = np.ascontiguousarray(valid)
+    h, w = valid.shape
+    var = None if variance is None else np.ascontiguousarray(variance).reshape(h, 3 * w)
+    frame = (p, sk.column_x(p, w), np.ascontiguousarray(rgb).reshape(h, 3 * w), valid,
+             np.ascontiguousarray(calibration, dtype=np.float64), float(min_cos))
+    spans = row_spans(p, (h, w))
+    if not blocks:
+        blocks = numba.get_num_threads() if valid.size >= sk.PARALLEL_MIN_CELLS else 1
+    if blocks < 2 or valid.size == 0:
+        out, var_out, n = _serial_samples(frame, var, spans)
+    else:
+        out, var_out, n = _threaded_samples(frame, var, spans, blocks)
+    for a in (*out, var_out):
+        if a is not None:
+            a.resize((n, *a.shape[1:]), refcheck=False)  # realloc: shrinking copies nothing
+    wi, wo, brdf, rows, cols = out
+    return wi, wo, brdf, var_out, (rows, cols)
+
+
+def _sample_arrays(capacity: int, variance: bool
+                   ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
+    """Outputs for up to ``capacity`` samples: (wi, wo, brdf, rows, cols) and the variance's.
+    Rows never written are never touched: they cost address space, not memory."""
+    f64 = [np.empty((capacity, 3)) for _ in range(4 if variance else 3)]
+    out = (*f64[:3], np.empty(capacity, np.int64), np.empty(capacity, np.int64))
+    return out, (f64[3] if variance else None)
+
+
+def _serial_samples(frame: tuple, var: np.ndarray | None, spans: tuple[np.ndarray, np.ndarray]
+                    ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None, int]:
+    """:func:`pixel_samples` on the calling thread, into outputs as large as the spans."""
+    from acquisition.reduction import sample_kernels as sk
+
+    capacity = int(np.sum(spans[1] - spans[0]))
+    out, var_out = _sample_arrays(capacity, var is not None)
+    n = sk.fill_serial(frame, var, spans, out, var_out, capacity)
+    if n < 0:
+        raise RuntimeError("per-pixel samples overflowed the spans' pixel count (a bug)")
+    return out, var_out, n
+
+
+def _threaded_samples(frame: tuple, var: np.ndarray | None,
+                      spans: tuple[np.ndarray, np.ndarray], blocks: int
+                      ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None, int]:
+    """:func:`pixel_samples` in ``blocks`` blocks of rows of about equal work: the rows before
+    the last block are counted first (on all threads), so each block writes its own rows of
+    the outputs, in row order; the last block's rows are bounded by its spans' pixels."""
+    import numba
+
+    from acquisition.reduction import sample_kernels as sk
+
+    width = spans[1] - spans[0]
+    bounds = _balanced(width, 0, width.size, blocks)
+    counts = np.zeros(width.size, np.int64)
+    sk.count_rows(frame, spans, _balanced(width, 0, int(bounds[-2]), numba.get_num_threads()),
+                  counts)
+    before = np.concatenate([[0], np.cumsum(counts)])
+    sizes = before[bounds[1:]] - before[bounds[:-1]]
+    sizes[-1] = int(np.sum(width[bounds[-2]:]))
+    ends = np.cumsum(sizes)
+    starts = ends - sizes
+    out, var_out = _sample_arrays(int(ends[-1]), var is not None)
+    got = np.zeros(blocks, np.int64)
+    sk.fill_blocks(frame, var, spans, bounds, starts, ends, out, var_out, got)
+    if got[-1] < 0 or not np.array_equal(got[:-1], ends[:-1]):
+        raise RuntimeError("per-pixel samples differ between their count and fill (a bug)")
+    return out, var_out, int(got[-1])
+
+
+def _balanced(work: np.ndarray, first: int, stop: int, parts: int) -> np.ndarray:
+    """Row bounds (int64, ``parts`` + 1) splitting rows [first, stop) into parts of about equal
+    total ``work``."""
+    total = np.concatenate([[0], np.cumsum(work[first:stop])])
+    bounds = first + np.searchsorted(total, total[-1] * np.arange(parts + 1) / parts,
+                                     side="left")
+    bounds[0], bounds[-1] = first, stop
+    return np.minimum(bounds, stop).astype(np.int64)

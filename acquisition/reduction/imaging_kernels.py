@@ -1,5 +1,5 @@
-"""Numba kernels of the per-pixel geometry (:mod:`acquisition.reduction.imaging`) and of a
-frame's BRDF samples (:func:`acquisition.reduction.image.frame_samples`), in one pass per pixel.
+"""Numba kernel of the per-pixel geometry (:mod:`acquisition.reduction.imaging`), in one pass per
+pixel; its per-pixel functions are those of a frame's BRDF samples too (:mod:`.sample_kernels`).
 
 Bit for bit the numpy path, on every CPU: each pixel goes through the same IEEE operations, in
 the same order, as the numpy code does them, and that code is elementwise only
@@ -13,7 +13,7 @@ tests/test_imaging_kernels.py compares both paths on random cameras, lights and 
 scalars of a frame (camera rotation, ``oc · oc − r²``) are computed once by the numpy code
 (elementwise too) and passed in (:func:`frame_parameters`).
 
-Outputs are compacted: a kernel walks the pixels from ``start`` and writes every kept pixel
+Outputs are compacted: the kernel walks the pixels from ``start`` and writes every kept pixel
 into the next free row of its output arrays; when they are full it returns where it stopped
 and the caller grows them (:func:`acquisition.reduction.imaging.collect`).
 """
@@ -152,34 +152,3 @@ def geometry(p, width, rows, cols, mask, wi, wo, irradiance, n, start):  # pragm
             irradiance[n] = e
             n += 1
     return n, mask.size
-
-
-@njit(**_JIT)
-def samples(p, rgb, valid, variance, calibration, min_cos, wi, wo, brdf, var_out, rows,
-            cols, n, start):  # pragma: no cover - compiled
-    """A frame's BRDF samples f = P / (C · cos θi / r²) from pixel q ≥ ``start`` (C order):
-    valid pixels seen with cos θi and cos θr ≥ ``min_cos``, and their noise variance
-    var P / (C · cos θi / r²)² (``variance`` of size 0: none). Written from row ``n`` on;
-    returns (rows written, pixel stopped at), as :func:`geometry`."""
-    height, width = valid.shape
-    has_var = variance.size > 0
-    for q in range(start, height * width):
-        if n >= rows.size:
-            return n, q
-        i, j = q // width, q % width
-        if not valid[i, j]:
-            continue
-        seen, i0, i1, i2, w0, w1, w2, e = _pixel(p, float(i), float(j))
-        if not (seen and i2 >= min_cos and w2 >= min_cos):
-            continue
-        wi[n, 0], wi[n, 1], wi[n, 2] = i0, i1, i2
-        wo[n, 0], wo[n, 1], wo[n, 2] = w0, w1, w2
-        for c in range(3):
-            s = e * calibration[c]
-            brdf[n, c] = np.float64(rgb[i, j, c]) / s
-            if has_var:
-                var_out[n, c] = np.float64(variance[i, j, c]) / (s * s)
-        rows[n] = i
-        cols[n] = j
-        n += 1
-    return n, height * width

@@ -178,15 +178,3 @@ def test_cached_kernels_dropped_when_a_dependency_changed(tmp_path, monkeypatch)
     (cache / "binning_kernels.deps").write_text("another digest")
     binning_kernels._drop_stale_cache()
     assert not code.exists()
-
-
-def test_large_arrays_stay_on_the_heap_on_glibc() -> None:
-    """The image reduction's per-frame arrays are reused from the heap (glibc's mallopt), once
-    per process; elsewhere nothing is changed."""
-    import platform
-
-    from acquisition.reduction.heap import keep_large_arrays_on_heap
-
-    first = keep_large_arrays_on_heap()
-    assert keep_large_arrays_on_heap() is first
-    assert first == (platform.libc_ver()[0] == "glibc")

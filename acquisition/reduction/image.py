@@ -71,7 +71,6 @@ from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.fixedorder import weighted_variance
 from acquisition.reduction.fusedbinning import bin_frame, helper_for, helper_pool
-from acquisition.reduction.heap import keep_large_arrays_on_heap
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import (
     PixelGeometry,
@@ -278,7 +277,6 @@ class ImageReducer:
         rig = folder.rig()
         if not rig.sample.image_based:
             raise SessionError(f"{folder.path}: the rig's [sample] is not image_based: use gonio reduce")
-        keep_large_arrays_on_heap()  # per-frame arrays reused, not fresh zeroed pages
         cb = bundle if isinstance(bundle, CalibrationBundle) else find_bundle(folder, bundle)
         return cls(folder, rig, cb, SampleGeometry.of(rig, cb), FrameCheck(folder.path), [],
                    np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), min_cos)

@@ -235,3 +235,30 @@ def test_without_dask_local_reductions_work_and_workers_say_how_to_install(
                  "--workers", "2"]) != 0
     assert "pip install 'gonio[distributed]'" in _one_line(capsys.readouterr().err)
     assert not (tmp_path / "t.h5").exists()
+
+
+def test_a_worker_task_holds_numba_to_its_share(monkeypatch):
+    """A spawned worker whose ``__main__`` imported gonio (so numba) before the nanny set
+    NUMBA_NUM_THREADS has a pool of every core: each task thread is held to the share."""
+    import threading
+
+    import numba
+
+    from acquisition.reduction.distributed import use_thread_share
+
+    def threads_after(env: str | None) -> int:
+        if env is None:
+            monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+        else:
+            monkeypatch.setenv("NUMBA_NUM_THREADS", env)
+        got: list[int] = []
+        thread = threading.Thread(target=lambda: (use_thread_share(),
+                                                  got.append(numba.get_num_threads())))
+        thread.start()
+        thread.join()
+        return got[0]
+
+    pool = numba.config.NUMBA_NUM_THREADS
+    assert threads_after("1") == 1
+    assert threads_after(None) == pool  # a remote cluster's worker: left alone
+    assert threads_after(str(pool + 4)) == pool  # never above the pool numba has

@@ -103,6 +103,19 @@ def worker_threads(workers: int) -> dict[str, dict[str, str]]:
     return {"env": {"NUMBA_NUM_THREADS": str(share)}}
 
 
+def use_thread_share() -> None:
+    """(worker) Hold this task thread's numba kernels to the share :func:`worker_threads` gave
+    the worker. The variable only sizes numba's pool if numba is imported after the worker
+    sets it; a spawned worker that first re-imports a ``__main__`` importing gonio has already
+    imported numba with a pool of every core (2 workers × 2 threads on 2 cores: 30 % more CPU
+    per frame, measured). No variable (a remote cluster's workers): nothing changes."""
+    share = os.environ.get("NUMBA_NUM_THREADS", "")
+    if share.isdigit() and int(share) >= 1:
+        import numba
+
+        numba.set_num_threads(min(int(share), numba.config.NUMBA_NUM_THREADS))
+
+
 class DistributedError(GonioError, RuntimeError):
     """The Dask cluster cannot be used (extra missing, scheduler unreachable, other versions
     on the workers) or a worker failed."""
@@ -219,6 +232,7 @@ _RUNNING: dict[tuple[str, int], PartialBuilder] = {}
 def image_frame(reducer: ImageReducer, frame: list[StepRecord], token: str) -> None:
     """(worker) Bin an image frame into this worker thread's running sums of the session
     ``token`` (an undecodable frame is noted there)."""
+    use_thread_share()
     slot = (token, threading.get_ident())
     builder = _RUNNING.get(slot)
     if builder is None:
@@ -240,6 +254,7 @@ def take_running(token: str) -> Piece | None:
 
 def point_signal(source: PointSource, frame: SignalFrame) -> tuple[FrameSignal | None, str | None]:
     """(worker) A point frame's ROI signal, or (None, the frame's name) when undecodable."""
+    use_thread_share()
     check = FrameCheck(source.folder.path)
     signal = read_signal(source.folder, source.folder.rig(), source.cal, frame, check)
     return signal, (check.bad[0] if check.bad else None)

@@ -34,8 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     path = Path(args.path)
     if not path.exists():
-        raise api.ConfigError(f"{path} does not exist: give a session folder, an isotropic table "
-                          "(.h5), a MERL .binary or an RGL .bsdf file")
+        raise api.ConfigError(f"{path} does not exist: give a session folder, an isotropic "
+                              "table (.h5), a MERL .binary or an RGL .bsdf file")
     if path.is_dir():
         status = api.session_status(path, drift=not args.no_drift, verify=not args.no_verify)
         report(args, status.to_json(), status.lines())

@@ -330,18 +330,23 @@ def _mod360(x):  # pragma: no cover - compiled
     return x + 360.0 if x < 0.0 else x
 
 
+@njit(inline="always", **_JIT)
+def _delta_on_axis(dp, fold, start):  # pragma: no cover - compiled
+    """Δφ (deg) as the table's Δφ axis bins it: folded into [0, 180], or brought into
+    [start, start + 360)."""
+    if fold:
+        d = _mod360(dp)
+        return 360.0 - d if d > 180.0 else d
+    return start + _mod360(dp - start)
+
+
 @njit(**_JIT)
 def _iso_flat(ti, tr, dp, ei, er, ep, fold, start):  # pragma: no cover - compiled
     """Flat isotropic index, the edge rule of :class:`~acquisition.tables.IsotropicTable`
     (numba's float ``%`` is numpy's ``np.mod``: fmod, then + 360 when the signs differ)."""
     if math.isnan(ti) or math.isnan(tr) or math.isnan(dp):
         return DROP_NAN
-    if fold:
-        d = _mod360(dp)
-        if d > 180.0:
-            d = 360.0 - d
-    else:
-        d = start + _mod360(dp - start)
+    d = _delta_on_axis(dp, fold, start)
     ii = _axis_index(ti, ei)
     ir = _axis_index(tr, er)
     ip = _axis_index(d, ep)
@@ -405,10 +410,7 @@ def iso_block(ti, tr, dp, m, ei, er, ep, fold, bins, delta):  # pragma: no cover
     for j in range(m):
         if bins[j] == SLOW:
             bins[j] = _iso_flat(ti[j], tr[j], dp[j], ei, er, ep, fold, start)
-            x = dp[j] if fold else dp[j] - start
-            w = _mod360(x)
-            w = 360.0 - w if fold and w > 180.0 else w
-            delta[j] = w if fold else start + w
+            delta[j] = _delta_on_axis(dp[j], fold, start)
 
 
 @njit(**_JIT)

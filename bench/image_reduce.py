@@ -9,12 +9,12 @@ samples of 6 M superpixels; light and camera 30° apart) is captured into a temp
   least any reduction must do (LibRaw's unpack and a copy out of its buffer); no
   ``postprocess()``, whose demosaicing, colour conversion and gamma a radiometric reduction
   never uses and which would make the ratio look better than it is;
-* the whole image-based reduction of that frame (:meth:`ImageReducer.samples`: decode,
-  linearize with the noise model, per-pixel geometry, sample extraction; then
-  :func:`bin_frames` into fresh MERL and isotropic tables, the budget tracked), with the
-  white references read once beforehand (per session, not per frame);
-* the per-pixel path alone on the already linearized frame
-  (:meth:`ImageReducer.frame_samples` and :func:`bin_frames`).
+* the whole image-based reduction of that frame (:meth:`ImageReducer.reduce`, what
+  ``gonio reduce`` runs: decode with the SHA-256 check, linearize with the noise model, then
+  per-pixel geometry and binning into fresh MERL and isotropic tables, the budget tracked),
+  with the white references read once beforehand (per session, not per frame);
+* the per-pixel path alone on the already linearized frame (:meth:`ImageReducer.bin_image`:
+  geometry and binning of every superpixel into both tables).
 
 Figures (medians of the interleaved repeats, wall time on a shared machine):
 ``image_reduce_vs_decode`` = decode time / whole reduction time (goal ≥ 0.3, issue 15);
@@ -55,7 +55,8 @@ def _decode(path: Path) -> np.ndarray:
 
 
 def bench_image_reduce() -> dict[str, dict[str, float | str]]:
-    from acquisition.reduction.image import ImageReducer, bin_frames
+    from acquisition.reduction.fusedbinning import helper_pool
+    from acquisition.reduction.image import ImageReducer
     from acquisition.reduction.point import linearize_with_variance
 
     with tempfile.TemporaryDirectory(prefix="gonio-bench-") as tmp:
@@ -65,13 +66,15 @@ def bench_image_reduce() -> dict[str, dict[str, float | str]]:
 
         def reduce() -> int:
             table, merl = reducer.new_tables()
-            return bin_frames(reducer.samples([frame]), table, merl, None, 0)[0]
+            return sum(count for _, count, _ in reducer.reduce([frame], table, merl))
 
         def per_pixel(image: object) -> int:
             table, merl = reducer.new_tables()
-            fs = reducer.frame_samples(image, frame[0])  # type: ignore[arg-type]
-            bin_frames([fs], table, merl, None, 0)
-            return fs.count
+            count = reducer.bin_image(image, frame[0], table, merl,  # type: ignore[arg-type]
+                                      helper_pool())
+            if count is None:
+                raise RuntimeError("the 24 MP frame did not take the per-pixel path")
+            return count
 
         image = linearize_with_variance(dng, reducer.rig, reducer.cal)
         _decode(dng), reduce(), per_pixel(image)  # warm the page cache and the kernels

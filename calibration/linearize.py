@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration import recycling
 from calibration.linearize_kernel import linearize_cells
 from calibration.raw import RawFrame
 from drivers.errors import CalibrationError
@@ -257,9 +258,9 @@ def _run_kernel(
                  ).astype(np.float32)
     red_at = divmod(frame.cfa_pattern.index("R"), 2)  # a Bayer layout (the loader checks)
     gain, read = noise_arrays if noise_arrays is not None else (None, None)
-    rgb = np.empty((hh, ww, 3), np.float32)
-    valid = np.empty((hh, ww), dtype=bool)
-    variance = np.empty((hh, ww, 3), np.float32) if noise_arrays is not None else None
+    rgb = recycling.empty((hh, ww, 3), np.float32)  # an earlier frame's memory: no page faults
+    valid = recycling.empty((hh, ww), bool)
+    variance = recycling.empty((hh, ww, 3), np.float32) if noise_arrays is not None else None
     bad = None if bad_pixels is None else bad_pixels.astype(bool, copy=False)
     linearize_cells(
         mosaic, red_at, black.astype(np.float64), threshold.astype(np.float64), dark,

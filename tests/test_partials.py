@@ -119,6 +119,27 @@ def test_image_session_partials_merge_to_the_reduced_table(sessions, tmp_path):
     assert sum(p.samples for p in singles.values()) == red.samples > 100_000
 
 
+def test_frames_binned_from_their_pixels_are_the_reference_tables(sessions):
+    """ImageReducer.reduce bins each frame straight from its pixels (pixelbinning); the
+    reference path (every frame's samples, then the tables' own add methods) gives the same
+    partials, samples and tallies."""
+    reducer = ImageReducer.open(sessions["sphere"])
+    rec, image = next(reducer.images(reducer.frames[:1]))
+    assert reducer.bin_image(image, rec, *reducer.new_tables()) is not None  # the fast path
+    fast, ref = reducer.new_tables(), reducer.new_tables()
+    counts = [count for _, count, _ in reducer.reduce(reducer.frames, *fast)]
+    ref_counts = []
+    for fs in reducer.samples(reducer.frames):
+        bin_frames([fs], *ref, None, 0, fused=False)
+        ref_counts.append(fs.count)
+    assert counts == ref_counts and sum(counts) > 100_000
+    for a, b in zip(fast, ref, strict=True):
+        pa, pb = a.partial(), b.partial()
+        assert pa.values.same_as(pb.values) and pa.dropped == pb.dropped
+        assert (pa.budget is None) == (pb.budget is None)
+        assert pa.budget is None or pa.budget.sums.same_as(pb.budget.sums)
+
+
 def test_running_sums_take_frames_in_any_order_and_each_once(sessions, tmp_path):
     """A Dask worker's running sums (PartialBuilder): frames added one call at a time, in a
     shuffled order, give the reduced table; a frame added twice is refused."""

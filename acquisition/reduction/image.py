@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -79,6 +80,7 @@ from acquisition.reduction.imaging import (
     frame_geometry,
     pixel_samples,
 )
+from acquisition.reduction.pixelbinning import bin_pixels
 from acquisition.reduction.point import (
     UNCERTAINTY_TERMS,
     Reduction,
@@ -349,18 +351,61 @@ class ImageReducer:
                              edges=[list(map(float, e)) for e in (plan.theta_i_edges,
                                     plan.theta_r_edges, plan.delta_phi_edges)])
 
-    def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
-        """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
-        frame that cannot be decoded is skipped and noted (``check.raise_if_any``)."""
+    def images(self, frames: Iterable[list[StepRecord]]
+               ) -> Iterator[tuple[StepRecord, LinearImage]]:
+        """Each frame (rows of :attr:`frames`) linearized, an HDR bracket merged, with its
+        (first) journal row; a frame that cannot be decoded is skipped and noted
+        (``check.raise_if_any``)."""
         for recs in frames:
             rec = recs[0]
             plain = len(recs) == 1 and hdr_group(rec.note) is None
             image = self.check.load(recs, lambda recs=recs, rec=rec, plain=plain: (
                 _linear(self.folder, self.rig, rec, self.cal) if plain
                 else _merged(self.folder, self.rig, recs, self.cal)))
-            if image is None:
-                continue
+            if image is not None:
+                yield rec, image
+
+    def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
+        """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
+        frame that cannot be decoded is skipped and noted (``check.raise_if_any``)."""
+        for rec, image in self.images(frames):
             yield self.frame_samples(image, rec)
+
+    def reduce(self, frames: Iterable[list[StepRecord]], table: IsotropicTable,
+               merl: MerlTable, angular: ImageAngular | None = None
+               ) -> Iterator[tuple[int, int, dict[str, np.ndarray] | None]]:
+        """Bin each frame into both tables, one frame at a time; yields its step, its
+        samples and its frame-bins' angular terms (:func:`frame_angular`, when ``angular``
+        is active). A frame goes straight from its pixels into the tables
+        (:meth:`bin_image`) where it can, else through :meth:`frame_samples` and
+        :func:`bin_frames`: the same tables, bit for bit."""
+        pool = helper_pool()
+        for rec, image in self.images(frames):
+            active = angular is not None and angular.active
+            count = None if active else self.bin_image(image, rec, table, merl, pool)
+            if count is not None:
+                yield rec.step, count, None
+                continue
+            fs = self.frame_samples(image, rec)
+            bin_frames([fs], table, merl, None, 0)
+            yield fs.step, fs.count, frame_angular(angular, fs) if active else None  # type: ignore[arg-type]
+
+    def bin_image(self, image: LinearImage, rec: StepRecord, table: IsotropicTable,
+                  merl: MerlTable, pool: ThreadPoolExecutor | None = None) -> int | None:
+        """Bin a linearized frame's samples (journal row ``rec``) straight into both tables
+        (:func:`~acquisition.reduction.pixelbinning.bin_pixels`, half its rows in ``pool``'s
+        thread); returns the samples binned, or None, having changed nothing, where only the
+        reference path applies (numpy backend, tables the fused kernels do not fit, a budget
+        near the exact sums' range)."""
+        if resolve_backend() != "numba":
+            return None
+        calibration, calibration_rel = self.reference_at(rec.step)
+        g = self.model.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
+        camera, light = frame_camera(self.rig, g.light_dir, g.camera_dir, image.valid.shape,
+                                     pointing_deg=self.model.pointing_deg)
+        return bin_pixels(camera, light, self.rig.sample, image.rgb, image.valid,
+                          image.variance, calibration, calibration_rel, self.min_cos, table,
+                          merl, pool)
 
     def frame_samples(self, image: LinearImage, rec: StepRecord) -> FrameSamples:
         """:func:`frame_samples` of a linearized frame (journal row ``rec``), scaled by the
@@ -458,16 +503,17 @@ class PartialBuilder:
 
     def add(self, frames: Iterable[list[StepRecord]]) -> None:
         """Bin ``frames`` (rows of :attr:`ImageReducer.frames`) into the sums."""
-        for fs in self.reducer.samples(frames):
-            if fs.step in self.steps:  # e.g. a task run twice on one worker
-                raise PartialError(f"frame at step {fs.step} was binned twice: each frame must "
-                                   "be reduced once")
-            bin_frames([fs], self.table, self.merl, None, 0)
-            self.steps.add(fs.step)
-            self.samples += fs.count
-            arrays = frame_angular(self.angular, fs)
+        frames = list(frames)
+        for recs in frames:
+            if recs[0].step in self.steps:  # e.g. a task run twice on one worker
+                raise PartialError(f"frame at step {recs[0].step} was binned twice: each frame "
+                                   "must be reduced once")
+        for step, count, arrays in self.reducer.reduce(frames, self.table, self.merl,
+                                                       self.angular):
+            self.steps.add(step)
+            self.samples += count
             if arrays is not None:
-                self.data[fs.step] = arrays
+                self.data[step] = arrays
 
     def partial(self) -> ReductionPartial:
         """The frames added so far, as a partial."""
@@ -582,9 +628,9 @@ def reduce_image_session(
     run = Checkpointed(reducer.key, {"isotropic": table, "merl": merl}, checkpoint,
                        checkpoint_every, inputs=(reducer.folder.path,))
     held = run.resume(f[0].step for f in frames)
-    for fs in reducer.samples(f for f in frames if f[0].step not in held):
-        bin_frames([fs], table, merl, None, 0)
-        run.frame_done(fs.step, fs.count, frame_angular(angular, fs))
+    for step, count, arrays in reducer.reduce((f for f in frames if f[0].step not in held),
+                                              table, merl, angular):
+        run.frame_done(step, count, arrays)
         if progress:
             progress(len(run.steps), len(frames))
     reducer.check.raise_if_any()

@@ -33,6 +33,7 @@ from acquisition.config.rig import CameraIntrinsics, RigConfig, SampleConfig
 from acquisition.geometry.pinhole import PinholeCamera
 from acquisition.reduction.fixedorder import dot3, norm3
 from acquisition.tables.backend import resolve_backend
+from calibration import recycling
 from drivers.errors import ConfigError
 
 Pixels = tuple[np.ndarray, np.ndarray]
@@ -349,19 +350,16 @@ def pixel_samples(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleCo
         out, var_out, n = _serial_samples(frame, var, spans)
     else:
         out, var_out, n = _threaded_samples(frame, var, spans, blocks)
-    for a in (*out, var_out):
-        if a is not None:
-            a.resize((n, *a.shape[1:]), refcheck=False)  # realloc: shrinking copies nothing
-    wi, wo, brdf, rows, cols = out
-    return wi, wo, brdf, var_out, (rows, cols)
+    wi, wo, brdf, rows, cols = (a[:n] for a in out)
+    return wi, wo, brdf, None if var_out is None else var_out[:n], (rows, cols)
 
 
 def _sample_arrays(capacity: int, variance: bool
                    ) -> tuple[tuple[np.ndarray, ...], np.ndarray | None]:
-    """Outputs for up to ``capacity`` samples: (wi, wo, brdf, rows, cols) and the variance's.
-    Rows never written are never touched: they cost address space, not memory."""
-    f64 = [np.empty((capacity, 3)) for _ in range(4 if variance else 3)]
-    out = (*f64[:3], np.empty(capacity, np.int64), np.empty(capacity, np.int64))
+    """Outputs for up to ``capacity`` samples: (wi, wo, brdf, rows, cols) and the variance's,
+    in an earlier frame's memory where nothing holds it any more (:mod:`calibration.recycling`)."""
+    f64 = [recycling.empty((capacity, 3)) for _ in range(4 if variance else 3)]
+    out = (*f64[:3], recycling.empty(capacity, np.int64), recycling.empty(capacity, np.int64))
     return out, (f64[3] if variance else None)
 
 

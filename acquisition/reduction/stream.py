@@ -33,8 +33,6 @@ from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.image import (
     ImageReducer,
     ImageReduction,
-    bin_frames,
-    frame_angular,
     sample_frames,
 )
 from acquisition.reduction.imageangular import ImageAngular
@@ -200,9 +198,9 @@ class ImageStream:
                  and self._final(f[0].step, planned, view.final if final is None else final)]
         self._tried.update(f[0].step for f in ready)  # a frame that cannot be read: once
         self.run.key = self.key(self._last_reference)  # what the checkpoints save
-        for fs in self.reducer.samples(ready):
-            bin_frames([fs], self.table, self.merl, None, 0)
-            self.run.frame_done(fs.step, fs.count, frame_angular(self.angular, fs))
+        for step, count, arrays in self.reducer.reduce(ready, self.table, self.merl,
+                                                       self.angular):
+            self.run.frame_done(step, count, arrays)
         return len(ready)
 
     @property

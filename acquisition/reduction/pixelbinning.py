@@ -1,0 +1,183 @@
+"""A linearized frame's pixels straight into the MERL and isotropic tables: per-pixel geometry,
+BRDF and binning in one compiled pass (:mod:`.pixelbinning_kernels`), on both cores, with no
+per-sample arrays.
+
+:func:`~acquisition.reduction.imaging.pixel_samples` then
+:func:`~acquisition.reduction.fusedbinning.bin_frame` give the same tables bit for bit (their
+reference; ``tests/test_pixel_binning.py``), but write and read back every sample's directions,
+BRDF and variance (~300 MB for a 24 MP frame) and bin after the geometry is done. Here the
+frame's rows are split into two parts of about equal work; each thread bins its part into
+tables of its own; the two are checked, then merged into the caller's tables (exact sums: any
+split gives the same integers). The checks are those of ``bin_frame``: a BRDF value with
+|f| ≥ 2^20 sr⁻¹ raises before either table changes, and a budget that could reach the exact
+sums' range sends the frame to the reference path (:func:`bin_pixels` returns None, having
+changed nothing).
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from acquisition.config.rig import SampleConfig
+from acquisition.geometry.pinhole import PinholeCamera
+from acquisition.reduction.fusedbinning import HELPER_FROM_SAMPLES, fits
+from acquisition.tables import IsotropicTable, MerlTable
+from acquisition.tables.accumulator import SAMPLE_LIMIT
+from acquisition.tables.exact import ExactSums
+from acquisition.tables.fixedpoint import VALUE_LIMIT, check_range
+
+CHUNKS = 24
+"""Blocks of rows (of about equal pixels in their spans) two threads take in turn: the cost of
+a pixel varies over the frame (MERL bins per row, invalid pixels), so equal halves would not
+finish together."""
+
+
+@dataclass
+class _Part:
+    """One thread's tables and what its pass found."""
+
+    table: IsotropicTable
+    merl: MerlTable
+    found: np.ndarray  # samples, largest finite |f|, largest finite variance
+
+
+class _Chunks:
+    """Blocks of rows handed out in order, one at a time, to whichever thread asks."""
+
+    def __init__(self, bounds: np.ndarray) -> None:
+        self._bounds = [int(b) for b in bounds]
+        self._next = 0
+        self._lock = threading.Lock()
+
+    def take(self) -> tuple[int, int] | None:
+        with self._lock:
+            i = self._next
+            if i + 1 >= len(self._bounds):
+                return None
+            self._next = i + 1
+            return self._bounds[i], self._bounds[i + 1]
+
+
+def _new_part(table: IsotropicTable, merl: MerlTable) -> _Part:
+    part = table._empty_like()
+    if table.tracks_uncertainty:
+        part.track_uncertainty(*(dict(terms) for terms in table._budget_terms()))
+    return _Part(part, MerlTable(merl.provenance, backend=merl.backend), np.zeros(3))
+
+
+def _stores(part: _Part) -> tuple[ExactSums, ExactSums, ExactSums]:
+    """The part's isotropic value store, budget store (a scratch one when it tracks none)
+    and MERL store."""
+    from acquisition.reduction.binning_kernels import BUDGET_SUMS
+
+    unc = part.table._unc
+    budget = unc._sums if unc is not None else ExactSums(1, BUDGET_SUMS)
+    return part.table._acc._sums, budget, part.merl._acc._sums
+
+
+def _arrays(store: ExactSums, tally: np.ndarray) -> tuple[np.ndarray, ...]:
+    return store.slot, store.rows, store.count, store.limbs, store.used, tally
+
+
+def _run(part: _Part, chunks: _Chunks, frame: tuple, variance: np.ndarray | None,
+         spans: tuple[np.ndarray, np.ndarray], rel: np.ndarray, budget: bool,
+         table: IsotropicTable) -> None:
+    """Bin blocks of rows into the part's tables until none is left, growing its stores
+    whenever the pass stops for room."""
+    from acquisition.reduction import pixelbinning_kernels as pk
+    from acquisition.tables.exact import _raise_if_overflow
+
+    stores = _stores(part)
+    tallies = [np.zeros(4, np.int64) for _ in stores]
+    for store in stores:
+        store._touch()
+    part.table._stored = None
+    part.table._stored_scatter = None
+    edges = (table.theta_i_edges, table.theta_r_edges, table.delta_phi_edges,
+             bool(table.fold_delta_phi))
+    need = pk.BATCH + int(frame[1].size)
+    while (rows := chunks.take()) is not None:
+        row, stop = rows
+        while row < stop:
+            row = int(pk.bin_rows(frame, variance, spans, row, stop, rel, budget, *edges,
+                                  *(_arrays(s, t) for s, t in zip(stores, tallies, strict=True)),
+                                  part.found))
+            if row < stop:
+                for store in stores:
+                    store.grow(need)
+    _raise_if_overflow(*tallies)
+    value, _, merl = tallies
+    part.table._acc.n_dropped_nan += int(value[1])
+    part.table._acc.n_dropped_range += int(value[2])
+    part.merl._acc.n_dropped_nan += int(merl[1])
+    part.merl._acc.n_dropped_range += int(merl[2])
+
+
+def _split(spans: tuple[np.ndarray, np.ndarray], parts: int) -> np.ndarray:
+    """Row bounds of ``parts`` parts of about equal work (pixels in the spans)."""
+    from acquisition.reduction.imaging import _balanced
+
+    width = np.maximum(spans[1] - spans[0], 0)
+    return _balanced(width, 0, width.size, parts)
+
+
+def bin_pixels(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
+               rgb: np.ndarray, valid: np.ndarray, variance: np.ndarray | None,
+               calibration: np.ndarray, calibration_rel: np.ndarray | None, min_cos: float,
+               table: IsotropicTable, merl: MerlTable,
+               pool: ThreadPoolExecutor | None = None) -> int | None:
+    """Bin the BRDF samples of a linearized frame (``rgb``, ``variance``: (rows, columns, 3),
+    DN/s and its square; ``valid`` (rows, columns); C (3,) and its relative u (3,)) into both
+    tables: the samples ``pixel_samples`` gives, binned as ``bin_frame`` bins them. Half the
+    rows go to ``pool``'s thread when given (large frames). Returns the samples binned, or
+    None, having changed nothing, when the fused kernels do not apply (:func:`fits`, the
+    budget's range): take the reference path then."""
+    from acquisition.reduction.imaging import frame_parameters
+    from acquisition.reduction.sample_kernels import column_x
+    from acquisition.reduction.sample_spans import row_spans
+
+    if not fits(table, merl):
+        return None
+    p = frame_parameters(camera, light_pos, sample)
+    valid = np.ascontiguousarray(valid)
+    h, w = valid.shape
+    var = None if variance is None else np.ascontiguousarray(variance).reshape(h, 3 * w)
+    frame = (p, column_x(p, w), np.ascontiguousarray(rgb).reshape(h, 3 * w), valid,
+             np.ascontiguousarray(calibration, dtype=np.float64), float(min_cos))
+    spans = row_spans(p, (h, w))
+    rel = (np.full(3, np.nan) if calibration_rel is None
+           else np.ascontiguousarray(calibration_rel, np.float64).reshape(3))
+    budget = table.tracks_uncertainty and var is not None
+    threads = 2 if pool is not None and int(np.sum(spans[1] - spans[0])) >= HELPER_FROM_SAMPLES \
+        else 1
+    chunks = _Chunks(_split(spans, CHUNKS if threads == 2 else 1))
+    parts = [_new_part(table, merl) for _ in range(threads)]
+    args = (chunks, frame, var, spans, rel, budget, table)
+    helper = pool.submit(_run, parts[1], *args) if threads == 2 else None  # type: ignore[union-attr]
+    try:
+        _run(parts[0], *args)
+    finally:
+        if helper is not None:
+            helper.result()
+    largest_f = max(float(part.found[1]) for part in parts)
+    largest_var = max(float(part.found[2]) for part in parts)
+    check_range(np.empty((0, 3)), SAMPLE_LIMIT, "sample value", " sr⁻¹", largest_f)
+    if table.tracks_uncertainty and not _budget_in_range(largest_f, largest_var, rel, var):
+        return None
+    for part in parts:
+        table.merge_partial(part.table.partial())
+        merl.merge_partial(part.merl.partial())
+    return int(sum(part.found[0] for part in parts))
+
+
+def _budget_in_range(largest_f: float, largest_var: float, rel: np.ndarray,
+                     variance: np.ndarray | None) -> bool:
+    """:func:`acquisition.reduction.fusedbinning.budget_in_range` from the pass's maxima."""
+    if variance is not None and largest_var >= VALUE_LIMIT:
+        return False
+    finite = np.abs(rel[np.isfinite(rel)])
+    return largest_f * (float(finite.max()) if finite.size else 0.0) < VALUE_LIMIT

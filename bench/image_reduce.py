@@ -21,11 +21,19 @@ Figures (medians of the interleaved repeats, wall time on a shared machine):
 ``image_per_pixel_msamples_per_s`` = samples binned per second of the per-pixel path / 1e6
 (goal ≥ 60); ``image_frame_superpixels_per_s`` = the same path's superpixels per second / 1e6;
 ``image_reduce_24mp_s`` and ``image_decode_24mp_s`` the two medians.
+
+The bare decode's time depends on the process's heap: LibRaw mallocs a 48 MB buffer per frame,
+which faults in ~12,000 fresh pages (~30 ms) unless a freed block of the heap can take it. A
+process that only decodes pays the faults every time; between reductions the buffer may or
+may not find such a block, depending on what the reduction allocated and freed. So
+``image_decode_fresh_process_s`` records the same decode, median of ``REPEATS``, in a
+separate process that does nothing else: a reference for the in-process figure.
 """
 
 from __future__ import annotations
 
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -52,6 +60,25 @@ def _capture(folder: Path) -> Path:
 def _decode(path: Path) -> np.ndarray:
     with rawpy.imread(str(path)) as raw:
         return raw.raw_image_visible.copy()
+
+
+_FRESH = """
+import statistics, sys, time, rawpy
+times = []
+for _ in range(int(sys.argv[2])):
+    t = time.perf_counter()
+    with rawpy.imread(sys.argv[1]) as raw:
+        raw.raw_image_visible.copy()
+    times.append(time.perf_counter() - t)
+print(statistics.median(times))
+"""
+
+
+def _fresh_decode(path: Path) -> float:
+    """Median bare decode of ``path`` in a new process that only decodes (s)."""
+    out = subprocess.run([sys.executable, "-c", _FRESH, str(path), str(REPEATS)],
+                         capture_output=True, text=True, check=True, timeout=600)
+    return float(out.stdout.strip())
 
 
 def bench_image_reduce() -> dict[str, dict[str, float | str]]:
@@ -91,6 +118,7 @@ def bench_image_reduce() -> dict[str, dict[str, float | str]]:
             reduce_s.append(t2 - t1)
             pixel_s.append(t3 - t2)
         superpixels = image.valid.size
+        fresh = _fresh_decode(dng)
     decode, whole, pixel = (statistics.median(x) for x in (decode_s, reduce_s, pixel_s))
     return {
         "image_reduce_vs_decode": {"value": decode / whole, "unit": "ratio"},
@@ -98,6 +126,7 @@ def bench_image_reduce() -> dict[str, dict[str, float | str]]:
         "image_frame_superpixels_per_s": {"value": superpixels / pixel / 1e6, "unit": "M/s"},
         "image_reduce_24mp_s": {"value": whole, "unit": "s"},
         "image_decode_24mp_s": {"value": decode, "unit": "s"},
+        "image_decode_fresh_process_s": {"value": fresh, "unit": "s"},
         "image_frame_samples": {"value": samples, "unit": "samples"},
     }
 

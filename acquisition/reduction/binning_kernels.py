@@ -89,39 +89,57 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
     """Pose, isotropic bin, values and (``budget``) budget of each sample from ``start``,
     into the value store (``slot`` …, drops in ``tally`` as ``add_block``) and the budget
     store (``bslot`` …); returns where it stopped for room in either."""
-    n_bins = slot.size
-    xv, xb = np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS)
-    bv, bb, bins = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
-    f = np.empty((3, BLOCK * BUDGET_SUMS))
+    bins = np.empty(BLOCK, np.int64)
     angles, scratch = np.empty((4, BLOCK)), np.empty((6, BLOCK))
+    work = iso_buffers()
     for a in range(start, wi.shape[0], BLOCK):
         m = min(BLOCK, wi.shape[0] - a)
         if not (_room(m, slot, rows, used) and _room(m, bslot, brows, bused)):
             return a
-        nv = nb = 0
         block_poses(wi, wo, a, m, scratch, angles[0], angles[1], angles[2])
         iso_block(angles[0], angles[1], angles[2], m, ei, er, ep, fold, bins, angles[3])
-        for i in range(a, a + m):
-            ti, tr, d, b = angles[0, i - a], angles[1, i - a], angles[3, i - a], bins[i - a]
-            total = 0.0
-            for c in range(3):
-                total += rgb[i, c]
-            if b == DROP_NAN or not np.isfinite(total):
-                tally[1] += 1
-                continue
-            if b < 0 or b >= n_bins:
-                tally[2] += 1
-                continue
-            for c in range(3):
-                xv[6 * nv + c] = rgb[i, c]
-                xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
-            bv[nv] = b
-            nv += 1
-            if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
-                bb[nb] = b
-                nb += 1
-        _convert(xv, 6 * nv, f[0], f[1], f[2])
-        _scatter(bv, nv, f[0], f[1], f[2], slot, rows, count, limbs, used, tally)
-        _convert(xb, BUDGET_SUMS * nb, f[0], f[1], f[2])
-        _scatter(bb, nb, f[0], f[1], f[2], bslot, brows, bcount, blimbs, bused, btally)
+        iso_block_sums(angles[0], angles[1], angles[3], bins, a, m, rgb, var, rel, budget,
+                       slot, rows, count, limbs, used, tally,
+                       bslot, brows, bcount, blimbs, bused, btally, work)
     return wi.shape[0]
+
+
+@njit(**_JIT)
+def iso_buffers():  # pragma: no cover - compiled
+    """Scratch of :func:`iso_block_sums`: values, budget, their bins, limbs."""
+    return (np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS), np.empty(BLOCK, np.int64),
+            np.empty(BLOCK, np.int64), np.empty((3, BLOCK * BUDGET_SUMS)))
+
+
+@njit(**_JIT)
+def iso_block_sums(ti_, tr_, d_, bins, a, m, rgb, var, rel, budget,
+                   slot, rows, count, limbs, used, tally,
+                   bslot, brows, bcount, blimbs, bused, btally, work):  # pragma: no cover
+    """Samples ``a … a + m − 1`` (at most BLOCK; their θi, θr, folded Δφ and bin at
+    ``ti_[j]`` … for j < m) into the value and budget stores, which have room for them."""
+    n_bins = slot.size
+    xv, xb, bv, bb, f = work
+    nv = nb = 0
+    for i in range(a, a + m):
+        ti, tr, d, b = ti_[i - a], tr_[i - a], d_[i - a], bins[i - a]
+        total = 0.0
+        for c in range(3):
+            total += rgb[i, c]
+        if b == DROP_NAN or not np.isfinite(total):
+            tally[1] += 1
+            continue
+        if b < 0 or b >= n_bins:
+            tally[2] += 1
+            continue
+        for c in range(3):
+            xv[6 * nv + c] = rgb[i, c]
+            xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
+        bv[nv] = b
+        nv += 1
+        if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
+            bb[nb] = b
+            nb += 1
+    _convert(xv, 6 * nv, f[0], f[1], f[2])
+    _scatter(bv, nv, f[0], f[1], f[2], slot, rows, count, limbs, used, tally)
+    _convert(xb, BUDGET_SUMS * nb, f[0], f[1], f[2])
+    _scatter(bb, nb, f[0], f[1], f[2], bslot, brows, bcount, blimbs, bused, btally)

@@ -67,11 +67,12 @@ import numpy as np
 
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
+from acquisition.geometry.pinhole import PinholeCamera
 from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.checkpoint import Checkpointed, reduction_key
 from acquisition.reduction.fixedorder import weighted_variance
-from acquisition.reduction.fusedbinning import bin_frame, helper_for, helper_pool
+from acquisition.reduction.fusedbinning import bin_frame, fits, helper_for, helper_pool
 from acquisition.reduction.imageangular import FrameBins, ImageAngular
 from acquisition.reduction.imaging import (
     PixelGeometry,
@@ -80,7 +81,7 @@ from acquisition.reduction.imaging import (
     frame_geometry,
     pixel_samples,
 )
-from acquisition.reduction.pixelbinning import bin_pixels
+from acquisition.reduction.pixelbinning import GeometryJob, bin_pixels
 from acquisition.reduction.point import (
     UNCERTAINTY_TERMS,
     Reduction,
@@ -252,6 +253,9 @@ class ImageReducer:
     ref_cals: np.ndarray
     ref_vars: np.ndarray
     min_cos: float = DEFAULT_MIN_COS
+    frame_shape: tuple[int, int] | None = None
+    """The last frame's image size (superpixels): the next frame's, to start its geometry
+    while it is decoded (:meth:`reduce`)."""
 
     @classmethod
     def open(cls, session_dir: str | Path | SessionFolder,
@@ -357,13 +361,17 @@ class ImageReducer:
         (first) journal row; a frame that cannot be decoded is skipped and noted
         (``check.raise_if_any``)."""
         for recs in frames:
-            rec = recs[0]
-            plain = len(recs) == 1 and hdr_group(rec.note) is None
-            image = self.check.load(recs, lambda recs=recs, rec=rec, plain=plain: (
-                _linear(self.folder, self.rig, rec, self.cal) if plain
-                else _merged(self.folder, self.rig, recs, self.cal)))
+            image = self._load(recs)
             if image is not None:
-                yield rec, image
+                yield recs[0], image
+
+    def _load(self, recs: list[StepRecord]) -> LinearImage | None:
+        """One frame linearized (an HDR bracket merged), or None when it cannot be read."""
+        rec = recs[0]
+        plain = len(recs) == 1 and hdr_group(rec.note) is None
+        return self.check.load(recs, lambda: (
+            _linear(self.folder, self.rig, rec, self.cal) if plain
+            else _merged(self.folder, self.rig, recs, self.cal)))
 
     def samples(self, frames: Iterable[list[StepRecord]]) -> Iterator[FrameSamples]:
         """The BRDF samples of each frame (rows of :attr:`frames`), one frame at a time; a
@@ -377,12 +385,24 @@ class ImageReducer:
         """Bin each frame into both tables, one frame at a time; yields its step, its
         samples and its frame-bins' angular terms (:func:`frame_angular`, when ``angular``
         is active). A frame goes straight from its pixels into the tables
-        (:meth:`bin_image`) where it can, else through :meth:`frame_samples` and
-        :func:`bin_frames`: the same tables, bit for bit."""
+        (:meth:`bin_image`; the work that needs only its pose starts while it is decoded,
+        for the image size of the frame before) where it can, else through
+        :meth:`frame_samples` and :func:`bin_frames`: the same tables, bit for bit."""
         pool = helper_pool()
-        for rec, image in self.images(frames):
-            active = angular is not None and angular.active
-            count = None if active else self.bin_image(image, rec, table, merl, pool)
+        active = angular is not None and angular.active
+        for recs in frames:
+            rec = recs[0]
+            shape = self.frame_shape
+            ahead = None if active or shape is None else self.geometry(rec, shape, table, merl)
+            if ahead is not None:
+                ahead.start(pool)
+            image = self._load(recs)
+            if image is None:
+                if ahead is not None:
+                    ahead.cancel()
+                continue
+            self.frame_shape = image.valid.shape
+            count = None if active else self.bin_image(image, rec, table, merl, pool, ahead)
             if count is not None:
                 yield rec.step, count, None
                 continue
@@ -390,22 +410,40 @@ class ImageReducer:
             bin_frames([fs], table, merl, None, 0)
             yield fs.step, fs.count, frame_angular(angular, fs) if active else None  # type: ignore[arg-type]
 
+    def _camera(self, rec: StepRecord, shape: tuple[int, int]
+                ) -> tuple[PinholeCamera, np.ndarray]:
+        """The camera and light position (m) of the frame at journal row ``rec``."""
+        g = self.model.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
+        return frame_camera(self.rig, g.light_dir, g.camera_dir, shape,
+                            pointing_deg=self.model.pointing_deg)
+
+    def geometry(self, rec: StepRecord, shape: tuple[int, int], table: IsotropicTable,
+                 merl: MerlTable) -> GeometryJob | None:
+        """The per-pixel work of the frame at ``rec`` that needs only its pose, for images of
+        ``shape`` superpixels (None where :meth:`bin_image` would not use it)."""
+        if resolve_backend() != "numba" or not fits(table, merl):
+            return None
+        camera, light = self._camera(rec, shape)
+        return GeometryJob(camera, light, self.rig.sample, shape, self.min_cos, table)
+
     def bin_image(self, image: LinearImage, rec: StepRecord, table: IsotropicTable,
-                  merl: MerlTable, pool: ThreadPoolExecutor | None = None) -> int | None:
+                  merl: MerlTable, pool: ThreadPoolExecutor | None = None,
+                  geometry: GeometryJob | None = None) -> int | None:
         """Bin a linearized frame's samples (journal row ``rec``) straight into both tables
-        (:func:`~acquisition.reduction.pixelbinning.bin_pixels`, half its rows in ``pool``'s
-        thread); returns the samples binned, or None, having changed nothing, where only the
-        reference path applies (numpy backend, tables the fused kernels do not fit, a budget
-        near the exact sums' range)."""
+        (:func:`~acquisition.reduction.pixelbinning.bin_pixels`, shared with ``pool``'s
+        thread; ``geometry``: the frame's :meth:`geometry`, perhaps started); returns the
+        samples binned, or None, having changed nothing, where only the reference path
+        applies (numpy backend, tables the fused kernels do not fit, a budget near the exact
+        sums' range)."""
         if resolve_backend() != "numba":
+            if geometry is not None:
+                geometry.cancel()
             return None
         calibration, calibration_rel = self.reference_at(rec.step)
-        g = self.model.kinematics.forward_geometry(rec.joints_read or rec.joints_cmd)
-        camera, light = frame_camera(self.rig, g.light_dir, g.camera_dir, image.valid.shape,
-                                     pointing_deg=self.model.pointing_deg)
+        camera, light = self._camera(rec, image.valid.shape)
         return bin_pixels(camera, light, self.rig.sample, image.rgb, image.valid,
                           image.variance, calibration, calibration_rel, self.min_cos, table,
-                          merl, pool)
+                          merl, pool, geometry)
 
     def frame_samples(self, image: LinearImage, rec: StepRecord) -> FrameSamples:
         """:func:`frame_samples` of a linearized frame (journal row ``rec``), scaled by the
@@ -417,9 +455,7 @@ class ImageReducer:
             geo = _geometry(self.rig, rec, image.valid.shape, model=self.model)
             return replace(frame_samples(image, geo, calibration, rec.step, self.min_cos,
                                          calibration_rel), joints=joints)
-        g = self.model.kinematics.forward_geometry(joints)
-        camera, light = frame_camera(self.rig, g.light_dir, g.camera_dir, image.valid.shape,
-                                     pointing_deg=self.model.pointing_deg)
+        camera, light = self._camera(rec, image.valid.shape)
         wi, wo, brdf, variance, pixels = pixel_samples(
             camera, light, self.rig.sample, image.rgb, image.valid, image.variance,
             calibration, self.min_cos)

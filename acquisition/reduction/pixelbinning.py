@@ -1,23 +1,25 @@
-"""A linearized frame's pixels straight into the MERL and isotropic tables: per-pixel geometry,
-BRDF and binning in one compiled pass (:mod:`.pixelbinning_kernels`), on both cores, with no
-per-sample arrays.
+"""A linearized frame's pixels straight into the MERL and isotropic tables, on both cores, with
+no per-sample arrays (:mod:`.pixelbinning_kernels`).
 
 :func:`~acquisition.reduction.imaging.pixel_samples` then
 :func:`~acquisition.reduction.fusedbinning.bin_frame` give the same tables bit for bit (their
 reference; ``tests/test_pixel_binning.py``), but write and read back every sample's directions,
-BRDF and variance (~300 MB for a 24 MP frame) and bin after the geometry is done. Here the
-frame's rows are split into two parts of about equal work; each thread bins its part into
-tables of its own; the two are checked, then merged into the caller's tables (exact sums: any
-split gives the same integers). The checks are those of ``bin_frame``: a BRDF value with
-|f| ≥ 2^20 sr⁻¹ raises before either table changes, and a budget that could reach the exact
-sums' range sends the frame to the reference path (:func:`bin_pixels` returns None, having
-changed nothing).
+BRDF and variance (~300 MB for a 24 MP frame) and do all the work after the frame is decoded.
+
+Here the work that needs only the pose (each pixel's geometry, MERL bin, pose and isotropic
+bin: :class:`GeometryJob`) can start before the frame is decoded, on the helper thread while
+the calling thread decodes (:meth:`GeometryJob.start`); then both threads take blocks of rows
+in turn, each binning the valid pixels into tables of its own; those are checked, then merged
+into the caller's tables (exact sums: any split gives the same integers). The checks are those
+of ``bin_frame``: a BRDF value with |f| ≥ 2^20 sr⁻¹ raises before either table changes, and a
+budget that could reach the exact sums' range sends the frame to the reference path
+(:func:`bin_pixels` returns None, having changed nothing).
 """
 
 from __future__ import annotations
 
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,11 +31,12 @@ from acquisition.tables import IsotropicTable, MerlTable
 from acquisition.tables.accumulator import SAMPLE_LIMIT
 from acquisition.tables.exact import ExactSums
 from acquisition.tables.fixedpoint import VALUE_LIMIT, check_range
+from calibration import recycling
 
 CHUNKS = 24
-"""Blocks of rows (of about equal pixels in their spans) two threads take in turn: the cost of
-a pixel varies over the frame (MERL bins per row, invalid pixels), so equal halves would not
-finish together."""
+"""Blocks of rows (of about equal work) the threads take in turn: the cost of a pixel varies
+over the frame (MERL bins per row, invalid pixels), so equal halves would not finish
+together."""
 
 
 @dataclass
@@ -52,6 +55,11 @@ class _Chunks:
         self._bounds = [int(b) for b in bounds]
         self._next = 0
         self._lock = threading.Lock()
+
+    def cancel(self) -> None:
+        """Hand out nothing more."""
+        with self._lock:
+            self._next = len(self._bounds)
 
     def take(self) -> tuple[int, int] | None:
         with self._lock:
@@ -83,12 +91,67 @@ def _arrays(store: ExactSums, tally: np.ndarray) -> tuple[np.ndarray, ...]:
     return store.slot, store.rows, store.count, store.limbs, store.used, tally
 
 
+class GeometryJob:
+    """The candidates of one frame's pose and image shape (:func:`.pixelbinning_kernels.
+    geometry_rows`), computed in blocks of rows by whichever threads call :meth:`run`."""
+
+    def __init__(self, camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
+                 shape: tuple[int, int], min_cos: float, table: IsotropicTable) -> None:
+        from acquisition.reduction.imaging import frame_parameters
+        from acquisition.reduction.sample_kernels import column_x
+        from acquisition.reduction.sample_spans import row_spans
+
+        p = frame_parameters(camera, light_pos, sample)
+        self.shape = (int(shape[0]), int(shape[1]))
+        spans = row_spans(p, self.shape)
+        width = np.maximum(spans[1] - spans[0], 0)
+        total = int(width.sum())
+        offsets = np.concatenate([[0], np.cumsum(width)]).astype(np.int64)
+        self.frame = (p, column_x(p, self.shape[1]), float(min_cos))
+        self.spans = spans
+        self.pixels = total
+        self.arrays = (offsets, np.zeros(self.shape[0], np.int64),
+                       recycling.empty(total, np.int64), recycling.empty(total),
+                       recycling.empty(total, np.int64), recycling.empty(total, np.int64),
+                       recycling.empty(total), recycling.empty(total), recycling.empty(total))
+        self.edges = (table.theta_i_edges, table.theta_r_edges, table.delta_phi_edges,
+                      bool(table.fold_delta_phi))
+        self._chunks = _Chunks(_balanced(width, CHUNKS))
+        self._helper: Future[None] | None = None
+
+    def run(self) -> None:
+        """Compute blocks of rows until none is left."""
+        from acquisition.reduction.pixelbinning_kernels import geometry_rows
+
+        offsets, ncand, *rest = self.arrays
+        while (rows := self._chunks.take()) is not None:
+            geometry_rows(self.frame, self.spans, rows[0], rows[1], offsets, ncand, *rest,
+                          *self.edges)
+
+    def start(self, pool: ThreadPoolExecutor) -> GeometryJob:
+        """Begin in ``pool``'s thread (while the caller decodes the frame)."""
+        self._helper = pool.submit(self.run)
+        return self
+
+    def finish(self) -> None:
+        """Compute what is left on this thread too, and wait for the helper's share."""
+        self.run()
+        if self._helper is not None:
+            self._helper.result()
+
+    def cancel(self) -> None:
+        """Hand out no more rows, and wait for the helper's block (the frame went another
+        way)."""
+        self._chunks.cancel()
+        if self._helper is not None:
+            self._helper.result()
+
+
 def _run(part: _Part, chunks: _Chunks, frame: tuple, variance: np.ndarray | None,
-         spans: tuple[np.ndarray, np.ndarray], rel: np.ndarray, budget: bool,
-         table: IsotropicTable) -> None:
+         geometry: GeometryJob, rel: np.ndarray, budget: bool) -> None:
     """Bin blocks of rows into the part's tables until none is left, growing its stores
     whenever the pass stops for room."""
-    from acquisition.reduction import pixelbinning_kernels as pk
+    from acquisition.reduction.pixelbinning_kernels import BATCH, value_rows
     from acquisition.tables.exact import _raise_if_overflow
 
     stores = _stores(part)
@@ -97,15 +160,13 @@ def _run(part: _Part, chunks: _Chunks, frame: tuple, variance: np.ndarray | None
         store._touch()
     part.table._stored = None
     part.table._stored_scatter = None
-    edges = (table.theta_i_edges, table.theta_r_edges, table.delta_phi_edges,
-             bool(table.fold_delta_phi))
-    need = pk.BATCH + int(frame[1].size)
+    need = BATCH + geometry.shape[1]
     while (rows := chunks.take()) is not None:
         row, stop = rows
         while row < stop:
-            row = int(pk.bin_rows(frame, variance, spans, row, stop, rel, budget, *edges,
-                                  *(_arrays(s, t) for s, t in zip(stores, tallies, strict=True)),
-                                  part.found))
+            row = int(value_rows(frame, variance, row, stop, geometry.arrays, rel, budget,
+                                 *(_arrays(s, t) for s, t in zip(stores, tallies, strict=True)),
+                                 part.found))
             if row < stop:
                 for store in stores:
                     store.grow(need)
@@ -117,46 +178,49 @@ def _run(part: _Part, chunks: _Chunks, frame: tuple, variance: np.ndarray | None
     part.merl._acc.n_dropped_range += int(merl[2])
 
 
-def _split(spans: tuple[np.ndarray, np.ndarray], parts: int) -> np.ndarray:
-    """Row bounds of ``parts`` parts of about equal work (pixels in the spans)."""
-    from acquisition.reduction.imaging import _balanced
+def _balanced(width: np.ndarray, parts: int) -> np.ndarray:
+    """Row bounds of ``parts`` blocks of about equal work (pixels in the spans)."""
+    from acquisition.reduction.imaging import _balanced as balanced
 
-    width = np.maximum(spans[1] - spans[0], 0)
-    return _balanced(width, 0, width.size, parts)
+    return balanced(width, 0, width.size, parts)
 
 
 def bin_pixels(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfig,
                rgb: np.ndarray, valid: np.ndarray, variance: np.ndarray | None,
                calibration: np.ndarray, calibration_rel: np.ndarray | None, min_cos: float,
                table: IsotropicTable, merl: MerlTable,
-               pool: ThreadPoolExecutor | None = None) -> int | None:
+               pool: ThreadPoolExecutor | None = None,
+               geometry: GeometryJob | None = None) -> int | None:
     """Bin the BRDF samples of a linearized frame (``rgb``, ``variance``: (rows, columns, 3),
     DN/s and its square; ``valid`` (rows, columns); C (3,) and its relative u (3,)) into both
-    tables: the samples ``pixel_samples`` gives, binned as ``bin_frame`` bins them. Half the
-    rows go to ``pool``'s thread when given (large frames). Returns the samples binned, or
-    None, having changed nothing, when the fused kernels do not apply (:func:`fits`, the
-    budget's range): take the reference path then."""
-    from acquisition.reduction.imaging import frame_parameters
-    from acquisition.reduction.sample_kernels import column_x
-    from acquisition.reduction.sample_spans import row_spans
-
-    if not fits(table, merl):
-        return None
-    p = frame_parameters(camera, light_pos, sample)
+    tables: the samples ``pixel_samples`` gives, binned as ``bin_frame`` bins them, the work
+    shared with ``pool``'s thread when given (large frames). ``geometry``: this frame's pose's
+    :class:`GeometryJob`, perhaps started already (one for another image shape is dropped).
+    Returns the samples binned, or None, having changed nothing, when the fused kernels do
+    not apply (:func:`fits`, the budget's range): take the reference path then."""
     valid = np.ascontiguousarray(valid)
     h, w = valid.shape
+    if geometry is not None and (geometry.shape != (h, w) or not fits(table, merl)):
+        geometry.cancel()
+        geometry = None
+    if not fits(table, merl):
+        return None
+    if geometry is None:
+        geometry = GeometryJob(camera, light_pos, sample, (h, w), min_cos, table)
+        if pool is not None and geometry.pixels >= HELPER_FROM_SAMPLES:
+            geometry.start(pool)
+    geometry.finish()
     var = None if variance is None else np.ascontiguousarray(variance).reshape(h, 3 * w)
-    frame = (p, column_x(p, w), np.ascontiguousarray(rgb).reshape(h, 3 * w), valid,
-             np.ascontiguousarray(calibration, dtype=np.float64), float(min_cos))
-    spans = row_spans(p, (h, w))
+    frame = (np.ascontiguousarray(rgb).reshape(h, 3 * w), valid,
+             np.ascontiguousarray(calibration, dtype=np.float64))
     rel = (np.full(3, np.nan) if calibration_rel is None
            else np.ascontiguousarray(calibration_rel, np.float64).reshape(3))
     budget = table.tracks_uncertainty and var is not None
-    threads = 2 if pool is not None and int(np.sum(spans[1] - spans[0])) >= HELPER_FROM_SAMPLES \
-        else 1
-    chunks = _Chunks(_split(spans, CHUNKS if threads == 2 else 1))
+    threads = 2 if pool is not None and geometry.pixels >= HELPER_FROM_SAMPLES else 1
+    ncand = geometry.arrays[1]
+    chunks = _Chunks(_balanced(ncand, CHUNKS if threads == 2 else 1))
     parts = [_new_part(table, merl) for _ in range(threads)]
-    args = (chunks, frame, var, spans, rel, budget, table)
+    args = (chunks, frame, var, geometry, rel, budget)
     helper = pool.submit(_run, parts[1], *args) if threads == 2 else None  # type: ignore[union-attr]
     try:
         _run(parts[0], *args)

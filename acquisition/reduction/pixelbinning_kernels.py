@@ -1,17 +1,27 @@
-"""The compiled pass behind :mod:`acquisition.reduction.pixelbinning`: a linearized frame's
-rows straight into the MERL and isotropic tables' exact sums, no per-sample arrays in between.
+"""The compiled passes behind :mod:`acquisition.reduction.pixelbinning`: a frame's rows
+straight into the MERL and isotropic tables' exact sums, in two passes.
 
-Row by row, over each row's span of columns that can see the sample, the geometry and BRDF go
-through :mod:`.sample_kernels`' own SIMD row functions (the same bits as
-:func:`acquisition.reduction.imaging.pixel_samples`); the kept pixels (valid, cos θi and cos θr
-≥ the minimum) are copied, in column order, to a small batch (:data:`BATCH` samples, in the L2
-cache) that goes through the fused binning kernels (:mod:`.binning_kernels`) when full. So the
-tables get the samples ``pixel_samples`` then ``fusedbinning.bin_frame`` would give them, and
-exact sums make the order irrelevant: the same integers, bit for bit.
+* :func:`geometry_rows` needs no pixel value, only the pose: so it can run while the frame is
+  still being decoded. Row by row, over each row's span of columns that can see the sample,
+  the geometry goes through :mod:`.sample_kernels`' own SIMD row function; each pixel that sees
+  the sample with cos θi and cos θr ≥ the minimum (a *candidate*) gets its column, its
+  cos θi / r², its MERL bin (:func:`~acquisition.tables.kernels.merl_block_vectors`), its
+  pose and isotropic bin (:func:`.pose_kernels.block_poses`,
+  :func:`~acquisition.tables.kernels.iso_block`), at the row's offset in flat arrays.
+* :func:`value_rows` takes the valid candidates (the linearized frame's validity), computes
+  their BRDF and variance as :func:`.sample_kernels._brdf_row` does, and adds them, with the
+  bins and poses found before, to the exact sums through the fused binning kernels' own
+  functions (:func:`~acquisition.tables.exact_kernels.add_block`,
+  :func:`.binning_kernels.iso_block_sums`), a batch of :data:`BATCH` samples at a time.
+
+So the tables get the samples that :func:`~acquisition.reduction.imaging.pixel_samples` gives,
+binned as :func:`~acquisition.reduction.fusedbinning.bin_frame` bins them: the same integers,
+bit for bit (exact sums: the order is irrelevant).
 
 Room: before a row joins the batch, every store is checked for room for the batch's samples
-plus that row's (at most one new bin each); when one lacks it, the pass returns the first row
-of the batch (nothing of it was added), the caller grows the stores and calls again from there.
+plus that row's (at most one new bin each); when one lacks it, :func:`value_rows` returns the
+first row of the batch (nothing of it was added), the caller grows the stores and calls again
+from there.
 """
 
 from __future__ import annotations
@@ -36,25 +46,60 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction import imaging_kernels as k  # noqa: E402
-from acquisition.reduction.binning_kernels import iso_frame, merl_frame  # noqa: E402
-from acquisition.reduction.sample_kernels import BUFFER_ROWS, _brdf_row, _geometry_row  # noqa: E402
-from acquisition.tables.exact_kernels import _room  # noqa: E402
+from acquisition.reduction.binning_kernels import iso_block_sums, iso_buffers  # noqa: E402
+from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
+from acquisition.reduction.sample_kernels import BUFFER_ROWS, _geometry_row  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, _room, add_block  # noqa: E402
+from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 BATCH = 4096
-"""Samples binned together: the batch's directions, values and variances (~400 kB) stay in
-the L2 cache."""
+"""Samples binned together: the batch's values, bins and poses (~300 kB) stay in the L2
+cache."""
 _INF = np.inf
 
 
 @njit(**_JIT)
-def _bin_batch(n, wi, wo, f, var, rel, budget, ei, er, ep, fold,
-               v, b, m):  # pragma: no cover - compiled
-    """The batch's first ``n`` samples into the MERL store ``m`` and the isotropic value and
-    budget stores ``v``, ``b`` (each: slot, rows, count, limbs, used, tally)."""
-    merl_frame(wi[:n], wo[:n], f[:n], m[0], m[1], m[2], m[3], m[4], m[5], 0)
-    iso_frame(wi[:n], wo[:n], f[:n], var[:n], rel, budget, ei, er, ep, fold,
-              v[0], v[1], v[2], v[3], v[4], v[5], b[0], b[1], b[2], b[3], b[4], b[5], 0)
+def geometry_rows(frame, spans, first, stop, offsets, ncand, cols, e, midx, iidx, ti, tr, dp,
+                  ei, er, ep, fold):  # pragma: no cover - compiled
+    """The candidates of rows [first, stop) (``frame``: the pose's parameters, the columns'
+    x and the minimum cosine): row i's ``ncand[i]`` candidates at ``offsets[i]`` onwards,
+    each's column, cos θi / r² (m⁻²), MERL bin, isotropic bin, θi, θr and Δφ (folded as the
+    table folds it), degrees."""
+    p, xs, min_cos = frame
+    lo, hi = spans
+    w = xs.size
+    buf = np.empty((BUFFER_ROWS, w))
+    wi, wo = np.empty((w, 3)), np.empty((w, 3))
+    scratch, angles = np.empty((6, BLOCK)), np.empty((4, BLOCK))
+    idx, bins = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
+    for i in range(first, stop):
+        a, c = lo[i], hi[i]
+        ncand[i] = 0
+        if a >= c:
+            continue
+        _geometry_row(p, xs[a:c], (i - p[k.CY]) / p[k.FY], min_cos, buf)
+        o, n = offsets[i], 0
+        for j in range(c - a):
+            if buf[0, j] != 0.0:
+                for q in range(3):
+                    wi[n, q] = buf[1 + q, j]
+                    wo[n, q] = buf[4 + q, j]
+                cols[o + n] = a + j
+                e[o + n] = buf[7, j]
+                n += 1
+        for q in range(0, n, BLOCK):
+            m = min(BLOCK, n - q)
+            merl_block_vectors(wi, wo, q, m, scratch, idx)
+            block_poses(wi, wo, q, m, scratch, angles[0], angles[1], angles[2])
+            iso_block(angles[0], angles[1], angles[2], m, ei, er, ep, fold, bins, angles[3])
+            for j in range(m):
+                midx[o + q + j] = idx[j]
+                iidx[o + q + j] = bins[j]
+                ti[o + q + j] = angles[0, j]
+                tr[o + q + j] = angles[1, j]
+                dp[o + q + j] = angles[3, j]
+        ncand[i] = n
 
 
 @njit(**_JIT)
@@ -64,53 +109,72 @@ def _has_room(n, v, b, m):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def bin_rows(frame, variance, spans, first, stop, rel, budget, ei, er, ep, fold, v, b, m,
-             found):  # pragma: no cover - compiled
-    """Rows [first, stop) of the frame (``pixel_samples``' frame tuple and variance rows) into
-    the stores; ``found``: (samples, largest finite |f|, largest finite variance), updated.
-    Returns ``stop``, or the row to call again from once the stores have grown."""
-    p, xs, rgb, valid, calibration, min_cos = frame
-    lo, hi = spans
-    buf = np.empty((BUFFER_ROWS, xs.size))
-    wi, wo, f, var = (np.empty((BATCH + xs.size, 3)), np.empty((BATCH + xs.size, 3)),
-                      np.empty((BATCH + xs.size, 3)), np.empty((BATCH + xs.size, 3)))
+def _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
+               work):  # pragma: no cover - compiled
+    """The batch's first ``n`` samples into the MERL store ``m`` and the isotropic value and
+    budget stores ``v``, ``b`` (each: slot, rows, count, limbs, used, tally)."""
+    for q in range(0, n, BLOCK):
+        c = min(BLOCK, n - q)
+        add_block(mi[q:q + c], f, q, m[0], m[1], m[2], m[3], m[4], m[5])
+        iso_block_sums(t0[q:q + c], t1[q:q + c], t2[q:q + c], ii[q:q + c], q, c, f, var, rel,
+                       budget, v[0], v[1], v[2], v[3], v[4], v[5],
+                       b[0], b[1], b[2], b[3], b[4], b[5], work)
+
+
+@njit(**_JIT)
+def value_rows(frame, variance, first, stop, geometry, rel, budget, v, b, m,
+               found):  # pragma: no cover - compiled
+    """The valid candidates of rows [first, stop) (``frame``: rgb rows (3 values a pixel),
+    validity, C (3,); ``geometry``: :func:`geometry_rows`' arrays) into the stores;
+    ``found``: (samples, largest finite |f|, largest finite variance), updated. Returns
+    ``stop``, or the row to call again from once the stores have grown."""
+    rgb, valid, calibration = frame
+    offsets, ncand, cols, e, midx, iidx, ti, tr, dp = geometry
+    c0, c1, c2 = calibration[0], calibration[1], calibration[2]
+    size = BATCH + valid.shape[1]
+    f, var = np.empty((size, 3)), np.empty((size, 3))
+    mi, ii = np.empty(size, np.int64), np.empty(size, np.int64)
+    t0, t1, t2 = np.empty(size), np.empty(size), np.empty(size)
+    work = iso_buffers()
     n, batch_first = 0, first
     samples, big_f, big_var = 0, found[1], found[2]
     for i in range(first, stop):
-        a, c = lo[i], hi[i]
-        if a >= c:
+        count = ncand[i]
+        if count == 0:
             continue
-        if n + (c - a) > BATCH:
-            _bin_batch(n, wi, wo, f, var, rel, budget, ei, er, ep, fold, v, b, m)
+        if n + count > BATCH:
+            _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
             samples += n
             n, batch_first = 0, i
-        if not _has_room(n + (c - a), v, b, m):
+        if not _has_room(n + count, v, b, m):
             found[0] += samples
             found[1], found[2] = big_f, big_var
             return batch_first
-        _geometry_row(p, xs[a:c], (i - p[k.CY]) / p[k.FY], min_cos, buf)
-        if variance is None:  # pruned at compile time
-            _brdf_row(rgb[i, 3 * a:3 * c], None, calibration, buf)
-        else:
-            _brdf_row(rgb[i, 3 * a:3 * c], variance[i, 3 * a:3 * c], calibration, buf)
-        row_valid = valid[i, a:c]
-        for j in range(c - a):
-            if buf[0, j] != 0.0 and row_valid[j]:
+        o = offsets[i]
+        for j in range(o, o + count):
+            col = cols[j]
+            if not valid[i, col]:
+                continue
+            s = e[j]
+            s0, s1, s2 = s * c0, s * c1, s * c2  # as sample_kernels._brdf_row
+            f[n, 0] = np.float64(rgb[i, 3 * col]) / s0
+            f[n, 1] = np.float64(rgb[i, 3 * col + 1]) / s1
+            f[n, 2] = np.float64(rgb[i, 3 * col + 2]) / s2
+            if variance is not None:  # pruned at compile time
+                var[n, 0] = np.float64(variance[i, 3 * col]) / (s0 * s0)
+                var[n, 1] = np.float64(variance[i, 3 * col + 1]) / (s1 * s1)
+                var[n, 2] = np.float64(variance[i, 3 * col + 2]) / (s2 * s2)
                 for q in range(3):
-                    wi[n, q] = buf[1 + q, j]
-                    wo[n, q] = buf[4 + q, j]
-                    x = buf[8 + q, j]
-                    f[n, q] = x
-                    ax = abs(x)
-                    big_f = ax if (ax < _INF) & (ax > big_f) else big_f
-                    if variance is not None:
-                        s = buf[11 + q, j]
-                        var[n, q] = s
-                        a_s = abs(s)
-                        big_var = a_s if (a_s < _INF) & (a_s > big_var) else big_var
-                n += 1
+                    a_s = abs(var[n, q])
+                    big_var = a_s if (a_s < _INF) & (a_s > big_var) else big_var
+            for q in range(3):
+                ax = abs(f[n, q])
+                big_f = ax if (ax < _INF) & (ax > big_f) else big_f
+            mi[n], ii[n] = midx[j], iidx[j]
+            t0[n], t1[n], t2[n] = ti[j], tr[j], dp[j]
+            n += 1
     if n:
-        _bin_batch(n, wi, wo, f, var, rel, budget, ei, er, ep, fold, v, b, m)
+        _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
         samples += n
     found[0] += samples
     found[1], found[2] = big_f, big_var

@@ -53,7 +53,9 @@ def _tables(fold: bool, budget: bool = True) -> tuple[IsotropicTable, MerlTable]
     return table, MerlTable()
 
 
-def _same(a: tuple[IsotropicTable, MerlTable], b: tuple[IsotropicTable, MerlTable]) -> None:
+def assert_same_tables(a: tuple[IsotropicTable, MerlTable],
+                       b: tuple[IsotropicTable, MerlTable]) -> None:
+    """Both pairs of tables hold the same exact sums, budgets and drop tallies, bit for bit."""
     for x, y in zip(a, b, strict=True):
         px, py = x.partial(), y.partial()
         assert px.values.same_as(py.values)
@@ -76,8 +78,8 @@ def test_fused_tables_equal_reference_bit_for_bit(fold: bool, variance: bool, re
     bin_frames(frames, *ref, None, 0, fused=False)
     bin_frames(frames, *fused, None, 0)
     bin_frames(frames, *one, None, 0, threads=False)
-    _same(ref, fused)
-    _same(ref, one)
+    assert_same_tables(ref, fused)
+    assert_same_tables(ref, one)
     read = ("std_error", "mean_angles", "angle_covariance") if budget else ()
     for name in ("count", "mean", "variance", *read):
         np.testing.assert_array_equal(getattr(fused[0], name), getattr(ref[0], name))
@@ -92,7 +94,7 @@ def test_empty_frame_changes_nothing() -> None:
     ref, fused = _tables(True), _tables(True)
     assert bin_frames([empty], *fused, None, 0) == bin_frames([empty], *ref, None, 0,
                                                              fused=False) == (0, 1)
-    _same(ref, fused)
+    assert_same_tables(ref, fused)
     assert fused[0].n_samples == fused[1].n_samples == 0
 
 
@@ -103,7 +105,7 @@ def test_fused_in_two_threads_equals_one() -> None:
     assert bin_frame(fs.wi, fs.wo, fs.brdf, fs.variance, fs.calibration_rel, *one)
     with ThreadPoolExecutor(1) as pool:
         assert bin_frame(fs.wi, fs.wo, fs.brdf, fs.variance, fs.calibration_rel, *two, pool)
-    _same(one, two)
+    assert_same_tables(one, two)
 
 
 def test_only_frames_of_many_samples_go_to_the_helper_thread(
@@ -136,7 +138,7 @@ def test_out_of_range_raises_the_reference_error(field: str) -> None:
     with pytest.raises(OutOfRangeError) as got:
         bin_frames([fs], *fused, None, 0)
     assert str(got.value) == str(want.value)
-    _same(ref, fused)  # a value changes neither table; a budget term leaves the MERL one
+    assert_same_tables(ref, fused)  # a value changes neither table; a budget term leaves the MERL one
 
 
 @pytest.mark.parametrize("fold", [True, False])

@@ -12,6 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from test_fused_binning import assert_same_tables
 from test_imaging_kernels import random_image, scene
 
 from acquisition.reduction import pixelbinning
@@ -38,16 +39,6 @@ def _reference(cam, light, sample, image, cal, rel, min_cos, fold):
     bin_frames([FrameSamples(0, wi, wo, brdf, var, rel, pixels)], *tables, None, 0,
                fused=False)
     return tables, wi.shape[0]
-
-
-def _assert_same(a, b) -> None:
-    for x, y in zip(a, b, strict=True):
-        px, py = x.partial(), y.partial()
-        assert px.values.same_as(py.values)
-        assert px.dropped == py.dropped
-        assert (px.budget is None) == (py.budget is None)
-        if px.budget is not None:
-            assert px.budget.sums.same_as(py.budget.sums)
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +69,7 @@ def test_pixel_binning_is_the_reference_bit_for_bit(pool, monkeypatch, seed, the
         count = pixelbinning.bin_pixels(cam, light, sample, image.rgb, image.valid,
                                         image.variance, cal, rel_u, 0.02, *got, executor)
         assert count == n
-        _assert_same(got, ref)
+        assert_same_tables(got, ref)
 
 
 def test_the_stores_grow_mid_frame_and_lose_nothing(pool, monkeypatch) -> None:
@@ -108,7 +99,7 @@ def test_the_stores_grow_mid_frame_and_lose_nothing(pool, monkeypatch) -> None:
     assert pixelbinning.bin_pixels(cam, light, sample, image.rgb, image.valid, image.variance,
                                    cal, None, 0.02, *got, pool) == n
     assert grown
-    _assert_same(got, ref)
+    assert_same_tables(got, ref)
 
 
 def test_a_value_past_the_range_raises_before_either_table_changes(pool) -> None:

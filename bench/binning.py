@@ -23,11 +23,12 @@ Rates use the CPU time of the binning thread (``time.thread_time``), best of a f
 the machines are shared, and CPU time is what "per core" means.
 
 Where the time goes (one core): the exact sums cost most. Per sample the numba path classifies
-and copies x, x² (~4 ns), converts the six values to fixed-point limbs in a vectorised pass
-(~5 ns), then adds runs of one bin's samples to the store (~12 ns: flushes, the bin → row map);
-the (θh, θd, φd) index costs ~3–4 ns, the vector path adds three scalar inverse trigonometric
-calls (~15 ns each). Before the sums were exact (float64 added in sample order) the halfdiff path
-ran at ~90 M/s, the vector path at ~18 M/s; numpy's integer scatter-adds top out near 8 M/s.
+and copies x, x², splits the six values into three parts at fixed binary points in a
+vectorised pass, sums a run of one bin's samples part by part (exactly, in float64) and adds
+the run to the store once (the flush and the bin → row map cost most where runs are short);
+then come the bin index and, on the vector path, the portable inverse trigonometric functions.
+Before the sums were exact (float64 added in sample order) the halfdiff path ran at ~90 M/s,
+the vector path at ~18 M/s; numpy's integer scatter-adds top out near 8 M/s.
 """
 
 from __future__ import annotations

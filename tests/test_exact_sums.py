@@ -46,6 +46,34 @@ def test_conversion_is_round_to_quantum_and_exact_above_2_to_minus_36():
     assert exact.sum() > 1500 and (~exact).sum() > 500
 
 
+def test_compiled_split_rounds_to_the_same_integer():
+    """The numba kernels' three parts (an integer, a multiple of 2^-44, one of 2^-88) add up to
+    the integer to_limbs holds, ties to even, from tiny to the largest values; a run's sums of
+    RUN_MAX extreme parts are exact in float64."""
+    from acquisition.tables.exact_kernels import RUN_MAX, _convert
+
+    rng = np.random.default_rng(1)
+    x = np.concatenate([_values(rng, 3000), [0.0, -0.0, 2.0**40 - 2.0**-12, -(2.0**40 - 0.5),
+                                             -(2.0**-36), 1.5 * 2.0**-88, 2.5 * 2.0**-88,
+                                             -2.5 * 2.0**-88, 2.0**-89, 0.5, -0.5, 1.5 * 2.0**-44]])
+    parts = [np.empty(x.size) for _ in range(3)]
+    _convert(x, x.size, *parts)
+    for v, p0, p1, p2 in zip(x, *parts, strict=True):
+        q = [Fraction(float(p)) * 2**FRACTION_BITS for p in (p0, p1, p2)]
+        assert all(f.denominator == 1 for f in q)
+        assert q[1] % 2**LIMB_BITS == 0 and q[2] % 2**FRACTION_BITS == 0
+        assert sum(q) == round(Fraction(float(v)) * 2**FRACTION_BITS), v
+    for part, bound, quantum in zip(parts, (2.0**-45, 0.5, 2.0**40), (-88, -44, 0),
+                                    strict=True):
+        assert np.abs(part).max() <= bound
+        steps = int(bound * 2.0**-quantum)  # a run of parts near the bound, one sign mostly
+        run = [math.ldexp(int(k), quantum) for k in rng.integers(-steps // 8, steps + 1, RUN_MAX)]
+        total = 0.0
+        for p in run:  # summed one by one, as a run is
+            total += p
+        assert Fraction(total) == sum(Fraction(p) for p in run)
+
+
 def test_readout_is_correctly_rounded_ties_included():
     rng = np.random.default_rng(2)
     ints = []

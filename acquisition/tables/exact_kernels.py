@@ -7,13 +7,21 @@ takes the next free one. Samples go in blocks of :data:`BLOCK`; before a block a
 that the store has room for as many new bins, else it stops and returns the sample it stopped
 at, the caller grows the store and calls again from there (nothing is lost or added twice).
 
-Per block, every value is converted to limbs in one vectorised pass, exactly as
-:func:`acquisition.tables.fixedpoint.to_limbs` does it in numpy (the same IEEE operations, no
-fast-math), so both backends hold the same integers; then consecutive samples of one bin are
-summed in a small local accumulator and added to the store once per run (an image fills a bin
-with runs of neighbouring pixels: ~75 % of samples follow one of their own bin). A bin's lower
-limbs get a carry pass whenever its count crosses a multiple of 2^17; a top limb past the
-overflow bound is counted in ``tally[3]`` (the caller raises).
+Per block, every value v is split in one vectorised pass into three doubles at fixed binary
+points (:func:`_convert`): p₂ = v rounded to an integer, p₁ = the rest rounded to a multiple of
+2^-44, p₀ = what is left rounded to a multiple of 2^-88, each rounding to nearest, ties to even,
+by adding and subtracting a constant (exact but for that rounding, no fast-math). Then
+p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
+:func:`acquisition.tables.fixedpoint.to_limbs` gives in numpy, so both backends hold the same
+sums. Consecutive samples of one bin (a run: an image fills a bin with runs of neighbouring
+pixels) are summed part by part in float64, which is exact: every p₂ is an integer below 2^40,
+every p₁ a multiple of 2^-44 below ½, every p₀ a multiple of 2^-88 below 2^-45, so the sums of
+up to :data:`RUN_MAX` of them need at most 53 bits. At the run's end each part's sum goes to its
+limb as an integer (p₂'s to the top limb, p₁'s × 2^44 to the middle one, p₀'s × 2^88 to the low
+one): one conversion per run and sum, not per sample. The limbs differ from ``to_limbs``' one
+by one (signed, rounded), the integers they hold do not, and the carry pass makes them the same
+canonical limbs. A bin's lower limbs get a carry pass whenever its count crosses a multiple of
+2^17; a top limb past the overflow bound is counted in ``tally[3]`` (the caller raises).
 """
 
 from __future__ import annotations
@@ -38,12 +46,17 @@ assert (LIMB_BITS, TOP_LIMIT, CARRY_EVERY) == (fixedpoint.LIMB_BITS, fixedpoint.
 assert DROP_NAN == accumulator.DROP_NAN
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
-_SCALE = float(2**LIMB_BITS)
 _MASK = (1 << LIMB_BITS) - 1
-_MAGIC = 1.5 * 2.0**52
-"""A double 1.5·2^52 ± d, d an integer below 2^51, has the bit pattern of 1.5·2^52 ± d: how
-signed limbs leave the floating-point unit in vector registers (AVX2 has no double → int64)."""
-_MAGIC_BITS = np.int64(0x4338000000000000)
+_ROUND_1 = 1.5 * 2.0**52
+"""x + c − c rounds |x| < 2^51 to an integer (to nearest, ties to even)."""
+_ROUND_2_44 = 1.5 * 2.0**8
+"""... |x| ≤ ½ to a multiple of 2^-44."""
+_ROUND_2_88 = 1.5 * 2.0**-36
+"""... |x| ≤ 2^-45 to a multiple of 2^-88."""
+_TWO_44 = 2.0**44
+_TWO_88 = 2.0**88
+RUN_MAX = 1 << 10
+"""Samples a run may sum in float64 exactly (p₁'s sum stays below 2^9 = 2^53 quanta of 2^-44)."""
 _ABS_BITS = np.int64(0x7FFFFFFFFFFFFFFF)
 _INF_BITS = np.int64(0x7FF0000000000000)
 BLOCK = 256
@@ -53,24 +66,23 @@ _CARRY_SHIFT = 17
 """A bin gets a carry pass when its count crosses a multiple of 2^17: with at most BLOCK
 additions per flush, fewer than CARRY_EVERY = 2^18 additions ever sit on its lower limbs."""
 assert (1 << _CARRY_SHIFT) + BLOCK <= CARRY_EVERY
+assert BLOCK <= RUN_MAX  # a run never spans two blocks
 
 
 @njit(**_JIT)
 def _convert(x, n, f0, f1, f2):  # pragma: no cover - compiled
-    """Signed limbs of x[q] (fixedpoint.to_limbs) for q < n, each as the double
-    1.5·2^52 + limb (a loop LLVM vectorises: floor, rint, multiplies and adds, all exact but
-    the rint that rounds to the quantum)."""
+    """x[q] (q < n, finite, |x| < 2^40) split into f2[q] (an integer), f1[q] (a multiple of
+    2^-44) and f0[q] (a multiple of 2^-88) with f2 + f1 + f0 = x rounded to a multiple of
+    2^-88, ties to even: a loop of adds and subtracts that LLVM vectorises."""
     for q in range(n):
         v = x[q]
-        a = abs(v)
-        sign = -1.0 if v < 0.0 else 1.0
-        t2 = np.floor(a)
-        r = (a - t2) * _SCALE
-        t1 = np.floor(r)
-        t0 = np.rint((r - t1) * _SCALE)
-        f0[q] = _MAGIC + sign * t0
-        f1[q] = _MAGIC + sign * t1
-        f2[q] = _MAGIC + sign * t2
+        p2 = (v + _ROUND_1) - _ROUND_1
+        r = v - p2
+        p1 = (r + _ROUND_2_44) - _ROUND_2_44
+        r = r - p1
+        f0[q] = (r + _ROUND_2_88) - _ROUND_2_88
+        f1[q] = p1
+        f2[q] = p2
 
 
 @njit(**_JIT)
@@ -105,14 +117,15 @@ def _row(b, slot, rows, used):  # pragma: no cover - compiled
 
 @njit(**_JIT)
 def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
-    """Add a run's ``run`` samples and their summed limbs ``acc`` to row ``s``."""
+    """Add a run's ``run`` samples and the exact float sums ``acc`` of their parts (p₀, p₁,
+    p₂ of each sum) to row ``s``'s limbs."""
     for k in range(acc.shape[0]):
-        limbs[s, k, 0] += acc[k, 0]
-        limbs[s, k, 1] += acc[k, 1]
-        limbs[s, k, 2] += acc[k, 2]
-        acc[k, 0] = 0
-        acc[k, 1] = 0
-        acc[k, 2] = 0
+        limbs[s, k, 0] += np.int64(acc[k, 0] * _TWO_88)
+        limbs[s, k, 1] += np.int64(acc[k, 1] * _TWO_44)
+        limbs[s, k, 2] += np.int64(acc[k, 2])
+        acc[k, 0] = 0.0
+        acc[k, 1] = 0.0
+        acc[k, 2] = 0.0
     before = count[s]
     count[s] = before + run
     if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):
@@ -122,14 +135,13 @@ def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
 @njit(**_JIT)
 def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
     """Add value row j (entries j·K … j·K + K − 1 of f0–f2, from :func:`_convert`) to bin
-    ``bins[j]`` for j < n, consecutive samples of one bin summed first (images fill a bin with
-    runs of pixels)."""
-    i0, i1, i2 = f0.view(np.int64), f1.view(np.int64), f2.view(np.int64)
+    ``bins[j]`` for j < n (n ≤ :data:`RUN_MAX`), consecutive samples of one bin summed first
+    (images fill a bin with runs of pixels)."""
     if limbs.shape[1] == 6:
-        _scatter6(bins, n, i0, i1, i2, slot, rows, count, limbs, used, tally)
+        _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
         return
     k_sums = limbs.shape[1]
-    acc = np.zeros((k_sums, 3), np.int64)
+    acc = np.zeros((k_sums, 3))
     current, s, run = -1, -1, 0
     for j in range(n):
         b = bins[j]
@@ -139,66 +151,53 @@ def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pra
             current, s, run = b, _row(b, slot, rows, used), 0
         q = j * k_sums
         for k in range(k_sums):
-            acc[k, 0] += i0[q + k] - _MAGIC_BITS
-            acc[k, 1] += i1[q + k] - _MAGIC_BITS
-            acc[k, 2] += i2[q + k] - _MAGIC_BITS
+            acc[k, 0] += f0[q + k]
+            acc[k, 1] += f1[q + k]
+            acc[k, 2] += f2[q + k]
         run += 1
     if run:
         _flush(s, run, acc, count, limbs, tally)
     tally[0] += n
 
 
+@njit(inline="always", **_JIT)
+def _plus6(acc, f, q):  # pragma: no cover - compiled
+    """The six sums ``acc`` plus f[q … q + 5] (a tuple: numba keeps it in registers)."""
+    return (acc[0] + f[q], acc[1] + f[q + 1], acc[2] + f[q + 2], acc[3] + f[q + 3],
+            acc[4] + f[q + 4], acc[5] + f[q + 5])
+
+
+_ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
 @njit(**_JIT)
-def _scatter6(bins, n, i0, i1, i2, slot, rows, count, limbs, used, tally):  # pragma: no cover
-    """:func:`_scatter` for six sums (x, x² of RGB), the run's sums held in registers (numba
-    keeps scalars, not a small array, in registers: twice as fast)."""
-    m = _MAGIC_BITS
-    a0 = a1 = a2 = a3 = a4 = a5 = np.int64(0)  # low limbs of the six sums
-    b0 = b1 = b2 = b3 = b4 = b5 = np.int64(0)  # middle limbs
-    c0 = c1 = c2 = c3 = c4 = c5 = np.int64(0)  # top limbs
+def _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """:func:`_scatter` for six sums (x, x² of RGB), the run's sums of each part held in
+    registers (numba keeps scalars, not a small array, in registers: twice as fast)."""
+    low = mid = top = _ZERO6  # the sums of the p₀, p₁ and p₂ parts
     current, s, run = -1, -1, 0
     for j in range(n + 1):
         b = bins[j] if j < n else -1
         if b != current:
             if run:
-                _flush6(s, run, (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, b5),
-                        (c0, c1, c2, c3, c4, c5), count, limbs, tally)
-                a0 = a1 = a2 = a3 = a4 = a5 = np.int64(0)
-                b0 = b1 = b2 = b3 = b4 = b5 = np.int64(0)
-                c0 = c1 = c2 = c3 = c4 = c5 = np.int64(0)
+                _flush6(s, run, low, mid, top, count, limbs, tally)
+                low = mid = top = _ZERO6
             if j == n:
                 break
             current, s, run = b, _row(b, slot, rows, used), 0
         q = 6 * j
-        a0 += i0[q] - m
-        a1 += i0[q + 1] - m
-        a2 += i0[q + 2] - m
-        a3 += i0[q + 3] - m
-        a4 += i0[q + 4] - m
-        a5 += i0[q + 5] - m
-        b0 += i1[q] - m
-        b1 += i1[q + 1] - m
-        b2 += i1[q + 2] - m
-        b3 += i1[q + 3] - m
-        b4 += i1[q + 4] - m
-        b5 += i1[q + 5] - m
-        c0 += i2[q] - m
-        c1 += i2[q + 1] - m
-        c2 += i2[q + 2] - m
-        c3 += i2[q + 3] - m
-        c4 += i2[q + 4] - m
-        c5 += i2[q + 5] - m
+        low, mid, top = _plus6(low, f0, q), _plus6(mid, f1, q), _plus6(top, f2, q)
         run += 1
     tally[0] += n
 
 
 @njit(inline="always", **_JIT)
 def _flush6(s, run, low, mid, top, count, limbs, tally):  # pragma: no cover - compiled
-    """:func:`_flush` of a run's six sums given as tuples of (low, middle, top) limbs."""
+    """:func:`_flush` of a run's six sums given as tuples of their parts' exact float sums."""
     for k in range(6):
-        limbs[s, k, 0] += low[k]
-        limbs[s, k, 1] += mid[k]
-        limbs[s, k, 2] += top[k]
+        limbs[s, k, 0] += np.int64(low[k] * _TWO_88)
+        limbs[s, k, 1] += np.int64(mid[k] * _TWO_44)
+        limbs[s, k, 2] += np.int64(top[k])
     before = count[s]
     count[s] = before + run
     if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):

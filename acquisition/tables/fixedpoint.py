@@ -5,12 +5,13 @@ limbs of :data:`LIMB_BITS` = 44 bits: V = l₂·2^88 + l₁·2^44 + l₀. Summin
 limbs, integer addition, so a sum does not depend on how the values were split, ordered or
 grouped; it is rounded to float64 once, when read (:func:`to_float`, correctly rounded).
 
-Conversion (:func:`to_limbs`, and the same operations in the numba kernels): with a = |v|,
-l₂ = ⌊a⌋, r = (a − l₂)·2^44, l₁ = ⌊r⌋, l₀ = rint((r − l₁)·2^44) (ties to even), each limb
-negated for a negative v. Every step but the last rint is exact in IEEE double, so a value
-converts exactly when its lowest set bit is ≥ 2^-88: any |v| ≥ 2^-36 ≈ 1.5e-11. Smaller
-values are rounded to the quantum, the same way every time (BRDF values, variances, angles and
-their products sit far above it).
+Conversion (:func:`to_limbs`): with a = |v|, l₂ = ⌊a⌋, r = (a − l₂)·2^44, l₁ = ⌊r⌋,
+l₀ = rint((r − l₁)·2^44) (ties to even), each limb negated for a negative v. Every step but the
+last rint is exact in IEEE double, so a value converts exactly when its lowest set bit is
+≥ 2^-88: any |v| ≥ 2^-36 ≈ 1.5e-11. Smaller values are rounded to the quantum, the same way
+every time (BRDF values, variances, angles and their products sit far above it). The numba
+kernels reach the same integer another way (:mod:`acquisition.tables.exact_kernels`: three
+parts at fixed binary points, summed exactly in float64 over a run of samples).
 
 Range: a summed value must have |v| < :data:`VALUE_LIMIT` = 2^40 ≈ 1.1e12 (so BRDF samples
 |x| < 2^20 ≈ 1.05e6 sr⁻¹, whose squares are summed too, and angles |θ| < 2^20 degrees);

@@ -74,6 +74,25 @@ def test_compiled_split_rounds_to_the_same_integer():
         assert Fraction(total) == sum(Fraction(p) for p in run)
 
 
+def test_a_run_longer_than_run_max_is_summed_in_pieces():
+    """One call of the compiled kernel with 5,000 samples of one bin, each of p₁ near ½ (their
+    float sum would need 56 bits): the bin holds the exact integer sum all the same."""
+    from acquisition.tables import exact_kernels
+
+    rng = np.random.default_rng(9)
+    n = 5000
+    vals = (0.5 - rng.uniform(0, 2.0**-30, (n, 1))) * rng.choice([1.0, 1.0, 1.0, -1.0], (n, 1))
+    store = ExactSums(1, 2)
+    tally = np.zeros(4, np.int64)
+    assert exact_kernels.add_block(np.zeros(n, np.int64), vals, 0, store.slot, store.rows,
+                                   store.count, store.limbs, store.used, tally)
+    got = [_integer(limbs) for limbs in normalize(store.limbs[:1].copy())[0]]
+    x = vals[:, 0]
+    assert got[0] == sum(round(Fraction(float(v)) * 2**FRACTION_BITS) for v in x)
+    assert got[1] == sum(round(Fraction(float(v)) * 2**FRACTION_BITS) for v in x * x)  # x²
+    assert int(store.count[0]) == n
+
+
 def test_readout_is_correctly_rounded_ties_included():
     rng = np.random.default_rng(2)
     ints = []

@@ -16,12 +16,13 @@ p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
 sums. Consecutive samples of one bin (a run: an image fills a bin with runs of neighbouring
 pixels) are summed part by part in float64, which is exact: every p₂ is an integer below 2^40,
 every p₁ a multiple of 2^-44 below ½, every p₀ a multiple of 2^-88 below 2^-45, so the sums of
-up to :data:`RUN_MAX` of them need at most 53 bits. At the run's end each part's sum goes to its
-limb as an integer (p₂'s to the top limb, p₁'s × 2^44 to the middle one, p₀'s × 2^88 to the low
-one): one conversion per run and sum, not per sample. The limbs differ from ``to_limbs``' one
-by one (signed, rounded), the integers they hold do not, and the carry pass makes them the same
-canonical limbs. A bin's lower limbs get a carry pass whenever its count crosses a multiple of
-2^17; a top limb past the overflow bound is counted in ``tally[3]`` (the caller raises).
+up to :data:`RUN_MAX` of them need at most 53 bits (a longer run is added in pieces). At the
+run's end each part's sum goes to its limb as an integer (p₂'s to the top limb, p₁'s × 2^44 to
+the middle one, p₀'s × 2^88 to the low one): one conversion per run and sum, not per sample.
+The limbs differ from ``to_limbs``' one by one (signed, rounded), the integers they hold do
+not, and the carry pass makes them the same canonical limbs. A bin's lower limbs get a carry
+pass whenever its count crosses a multiple of 2^17; a top limb past the overflow bound is
+counted in ``tally[3]`` (the caller raises).
 """
 
 from __future__ import annotations
@@ -63,10 +64,9 @@ BLOCK = 256
 """Samples per block: its values are converted in one vectorised pass (the buffers, ~50 kB,
 stay in the L1/L2 caches)."""
 _CARRY_SHIFT = 17
-"""A bin gets a carry pass when its count crosses a multiple of 2^17: with at most BLOCK
+"""A bin gets a carry pass when its count crosses a multiple of 2^17: with at most RUN_MAX
 additions per flush, fewer than CARRY_EVERY = 2^18 additions ever sit on its lower limbs."""
-assert (1 << _CARRY_SHIFT) + BLOCK <= CARRY_EVERY
-assert BLOCK <= RUN_MAX  # a run never spans two blocks
+assert (1 << _CARRY_SHIFT) + RUN_MAX <= CARRY_EVERY
 
 
 @njit(**_JIT)
@@ -135,8 +135,8 @@ def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
 @njit(**_JIT)
 def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
     """Add value row j (entries j·K … j·K + K − 1 of f0–f2, from :func:`_convert`) to bin
-    ``bins[j]`` for j < n (n ≤ :data:`RUN_MAX`), consecutive samples of one bin summed first
-    (images fill a bin with runs of pixels)."""
+    ``bins[j]`` for j < n, consecutive samples of one bin summed first (images fill a bin with
+    runs of pixels), at most :data:`RUN_MAX` at a time."""
     if limbs.shape[1] == 6:
         _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
         return
@@ -145,7 +145,7 @@ def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pra
     current, s, run = -1, -1, 0
     for j in range(n):
         b = bins[j]
-        if b != current:
+        if b != current or run == RUN_MAX:  # a run's float sums stay exact
             if run:
                 _flush(s, run, acc, count, limbs, tally)
             current, s, run = b, _row(b, slot, rows, used), 0
@@ -178,7 +178,7 @@ def _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pr
     current, s, run = -1, -1, 0
     for j in range(n + 1):
         b = bins[j] if j < n else -1
-        if b != current:
+        if b != current or run == RUN_MAX:  # a run's float sums stay exact
             if run:
                 _flush6(s, run, low, mid, top, count, limbs, tally)
                 low = mid = top = _ZERO6

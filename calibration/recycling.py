@@ -22,7 +22,8 @@ import numpy as np
 MIN_BYTES = 1 << 22
 """Arrays smaller than this (4 MiB) are plain ``np.empty``: malloc reuses their memory."""
 KEEP = 12
-"""Buffers the pool keeps (a frame takes up to eight: image, variance, valid, the samples)."""
+"""Buffers the pool keeps (a frame takes up to ten: image, variance and validity, then the
+per-pixel geometry's seven arrays or the samples' six)."""
 _FREE_REFS = 3
 """``sys.getrefcount`` of a pooled buffer nothing else refers to: the pool's list, the loop
 variable and the call's own argument."""

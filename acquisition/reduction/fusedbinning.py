@@ -67,9 +67,16 @@ def _largest(a: np.ndarray) -> float:
 
 def budget_in_range(brdf: np.ndarray, variance: np.ndarray | None, rel: np.ndarray) -> bool:
     """True when no finite budget term can reach the exact sums' range (a bound)."""
-    if variance is not None and _largest(variance) >= VALUE_LIMIT:
+    return maxima_in_range(_largest(brdf), None if variance is None else _largest(variance),
+                           _largest(rel.reshape(1, 3)))
+
+
+def maxima_in_range(largest_f: float, largest_var: float | None, largest_rel: float) -> bool:
+    """:func:`budget_in_range` from the largest finite |f|, variance (None: no variance) and
+    relative u."""
+    if largest_var is not None and largest_var >= VALUE_LIMIT:
         return False
-    return _largest(brdf) * _largest(rel.reshape(1, 3)) < VALUE_LIMIT
+    return largest_f * largest_rel < VALUE_LIMIT
 
 
 def _bin_merl(merl: MerlTable, wi: np.ndarray, wo: np.ndarray, rgb: np.ndarray) -> None:

@@ -26,11 +26,10 @@ import numpy as np
 
 from acquisition.config.rig import SampleConfig
 from acquisition.geometry.pinhole import PinholeCamera
-from acquisition.reduction.fusedbinning import HELPER_FROM_SAMPLES, fits
+from acquisition.reduction.fusedbinning import HELPER_FROM_SAMPLES, fits, maxima_in_range
 from acquisition.tables import IsotropicTable, MerlTable
-from acquisition.tables.accumulator import SAMPLE_LIMIT
 from acquisition.tables.exact import ExactSums
-from acquisition.tables.fixedpoint import VALUE_LIMIT, check_range
+from acquisition.tables.fixedpoint import max_finite_abs
 from calibration import recycling
 
 CHUNKS = 24
@@ -200,10 +199,11 @@ def bin_pixels(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfi
     not apply (:func:`fits`, the budget's range): take the reference path then."""
     valid = np.ascontiguousarray(valid)
     h, w = valid.shape
-    if geometry is not None and (geometry.shape != (h, w) or not fits(table, merl)):
-        geometry.cancel()
+    usable = fits(table, merl)
+    if geometry is not None and (geometry.shape != (h, w) or not usable):
+        geometry.cancel()  # started for another image size, or not to be used
         geometry = None
-    if not fits(table, merl):
+    if not usable:
         return None
     if geometry is None:
         geometry = GeometryJob(camera, light_pos, sample, (h, w), min_cos, table)
@@ -229,19 +229,12 @@ def bin_pixels(camera: PinholeCamera, light_pos: np.ndarray, sample: SampleConfi
             helper.result()
     largest_f = max(float(part.found[1]) for part in parts)
     largest_var = max(float(part.found[2]) for part in parts)
-    check_range(np.empty((0, 3)), SAMPLE_LIMIT, "sample value", " sr⁻¹", largest_f)
-    if table.tracks_uncertainty and not _budget_in_range(largest_f, largest_var, rel, var):
+    merl._acc._check_values(np.empty((0, 3)), largest_f)  # bin_frame's checks, same messages
+    if table.tracks_uncertainty and not maxima_in_range(
+            largest_f, None if var is None else largest_var,
+            float(max_finite_abs(rel.reshape(1, 3)))):
         return None
     for part in parts:
         table.merge_partial(part.table.partial())
         merl.merge_partial(part.merl.partial())
     return int(sum(part.found[0] for part in parts))
-
-
-def _budget_in_range(largest_f: float, largest_var: float, rel: np.ndarray,
-                     variance: np.ndarray | None) -> bool:
-    """:func:`acquisition.reduction.fusedbinning.budget_in_range` from the pass's maxima."""
-    if variance is not None and largest_var >= VALUE_LIMIT:
-        return False
-    finite = np.abs(rel[np.isfinite(rel)])
-    return largest_f * (float(finite.max()) if finite.size else 0.0) < VALUE_LIMIT

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
-from acquisition.tables.exact_kernels import BLOCK, _convert, _room, _scatter, add_block  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, _room, _scatter, add_block  # noqa: E402
 from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
@@ -106,9 +106,9 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
 
 @njit(**_JIT)
 def iso_buffers():  # pragma: no cover - compiled
-    """Scratch of :func:`iso_block_sums`: values, budget, their bins, limbs."""
+    """Scratch of :func:`iso_block_sums`: values, budget and their bins."""
     return (np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS), np.empty(BLOCK, np.int64),
-            np.empty(BLOCK, np.int64), np.empty((3, BLOCK * BUDGET_SUMS)))
+            np.empty(BLOCK, np.int64))
 
 
 @njit(**_JIT)
@@ -118,7 +118,7 @@ def iso_block_sums(ti_, tr_, d_, bins, a, m, rgb, var, rel, budget,
     """Samples ``a … a + m − 1`` (at most BLOCK; their θi, θr, folded Δφ and bin at
     ``ti_[j]`` … for j < m) into the value and budget stores, which have room for them."""
     n_bins = slot.size
-    xv, xb, bv, bb, f = work
+    xv, xb, bv, bb = work
     nv = nb = 0
     for i in range(a, a + m):
         ti, tr, d, b = ti_[i - a], tr_[i - a], d_[i - a], bins[i - a]
@@ -139,7 +139,5 @@ def iso_block_sums(ti_, tr_, d_, bins, a, m, rgb, var, rel, budget,
         if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
             bb[nb] = b
             nb += 1
-    _convert(xv, 6 * nv, f[0], f[1], f[2])
-    _scatter(bv, nv, f[0], f[1], f[2], slot, rows, count, limbs, used, tally)
-    _convert(xb, BUDGET_SUMS * nb, f[0], f[1], f[2])
-    _scatter(bb, nb, f[0], f[1], f[2], bslot, brows, bcount, blimbs, bused, btally)
+    _scatter(xv, bv, nv, slot, rows, count, limbs, used, tally)
+    _scatter(xb, bb, nb, bslot, brows, bcount, blimbs, bused, btally)

@@ -7,10 +7,11 @@ takes the next free one. Samples go in blocks of :data:`BLOCK`; before a block a
 that the store has room for as many new bins, else it stops and returns the sample it stopped
 at, the caller grows the store and calls again from there (nothing is lost or added twice).
 
-Per block, every value v is split in one vectorised pass into three doubles at fixed binary
-points (:func:`_convert`): p₂ = v rounded to an integer, p₁ = the rest rounded to a multiple of
-2^-44, p₀ = what is left rounded to a multiple of 2^-88, each rounding to nearest, ties to even,
-by adding and subtracting a constant (exact but for that rounding, no fast-math). Then
+Every value v is split into three doubles at fixed binary points (:func:`_convert`, a
+vectorised pass over a block, for the six sums of a value store; inline in the loop that sums
+them, :func:`_scatter`, for other stores): p₂ = v rounded to an integer, p₁ = the rest
+rounded to a multiple of 2^-44, p₀ = what is left rounded to a multiple of 2^-88, each
+rounding to nearest, ties to even, by adding and subtracting a constant (exact but for that rounding, no fast-math). Then
 p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
 :func:`acquisition.tables.fixedpoint.to_limbs` gives in numpy, so both backends hold the same
 sums. Consecutive samples of one bin (a run: an image fills a bin with runs of neighbouring
@@ -117,15 +118,15 @@ def _row(b, slot, rows, used):  # pragma: no cover - compiled
 
 @njit(**_JIT)
 def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
-    """Add a run's ``run`` samples and the exact float sums ``acc`` of their parts (p₀, p₁,
-    p₂ of each sum) to row ``s``'s limbs."""
-    for k in range(acc.shape[0]):
-        limbs[s, k, 0] += np.int64(acc[k, 0] * _TWO_88)
-        limbs[s, k, 1] += np.int64(acc[k, 1] * _TWO_44)
-        limbs[s, k, 2] += np.int64(acc[k, 2])
-        acc[k, 0] = 0.0
-        acc[k, 1] = 0.0
-        acc[k, 2] = 0.0
+    """Add a run's ``run`` samples and the exact float sums ``acc`` (3, sums) of their parts
+    (rows p₀, p₁, p₂) to row ``s``'s limbs, and zero ``acc``."""
+    for k in range(limbs.shape[1]):
+        limbs[s, k, 0] += np.int64(acc[0, k] * _TWO_88)
+        limbs[s, k, 1] += np.int64(acc[1, k] * _TWO_44)
+        limbs[s, k, 2] += np.int64(acc[2, k])
+        acc[0, k] = 0.0
+        acc[1, k] = 0.0
+        acc[2, k] = 0.0
     before = count[s]
     count[s] = before + run
     if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):
@@ -133,15 +134,20 @@ def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
-    """Add value row j (entries j·K … j·K + K − 1 of f0–f2, from :func:`_convert`) to bin
-    ``bins[j]`` for j < n, consecutive samples of one bin summed first (images fill a bin with
-    runs of pixels), at most :data:`RUN_MAX` at a time."""
-    if limbs.shape[1] == 6:
+def _scatter(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """Add value row j (entries j·K … j·K + K − 1 of ``x``; K sums) to bin ``bins[j]`` for
+    j < n, consecutive samples of one bin summed first (images fill a bin with runs of
+    pixels), at most :data:`RUN_MAX` at a time. Six sums go through :func:`_scatter6`;
+    others split each value and add its parts to the run's sums in one loop over the K sums
+    (contiguous: LLVM vectorises it)."""
+    k_sums = limbs.shape[1]
+    if k_sums == 6:
+        f0, f1, f2 = np.empty(6 * n), np.empty(6 * n), np.empty(6 * n)
+        _convert(x, 6 * n, f0, f1, f2)
         _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
         return
-    k_sums = limbs.shape[1]
-    acc = np.zeros((k_sums, 3))
+    acc = np.zeros((3, k_sums))
+    lo, mid, top = acc[0], acc[1], acc[2]
     current, s, run = -1, -1, 0
     for j in range(n):
         b = bins[j]
@@ -150,10 +156,14 @@ def _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pra
                 _flush(s, run, acc, count, limbs, tally)
             current, s, run = b, _row(b, slot, rows, used), 0
         q = j * k_sums
-        for k in range(k_sums):
-            acc[k, 0] += f0[q + k]
-            acc[k, 1] += f1[q + k]
-            acc[k, 2] += f2[q + k]
+        for k in range(k_sums):  # as _convert, each part straight into its sum
+            v = x[q + k]
+            p2 = (v + _ROUND_1) - _ROUND_1
+            r = v - p2
+            p1 = (r + _ROUND_2_44) - _ROUND_2_44
+            lo[k] += ((r - p1) + _ROUND_2_88) - _ROUND_2_88
+            mid[k] += p1
+            top[k] += p2
         run += 1
     if run:
         _flush(s, run, acc, count, limbs, tally)
@@ -242,9 +252,7 @@ def add_block(idx, vals, start, slot, rows, count, limbs, used, tally):  # pragm
                 x[q + channels + c] = v * v
             bins[n] = b
             n += 1
-    f0, f1, f2 = np.empty(n * k_sums), np.empty(n * k_sums), np.empty(n * k_sums)
-    _convert(x, n * k_sums, f0, f1, f2)
-    _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
+    _scatter(x, bins, n, slot, rows, count, limbs, used, tally)
     return True
 
 
@@ -269,9 +277,7 @@ def add_sums(idx, vals, slot, rows, count, limbs, used, tally, start):  # pragma
         if not _room(m, slot, rows, used):
             return a
         x = np.ascontiguousarray(vals[a:a + m]).reshape(m * k_sums)
-        f0, f1, f2 = np.empty(m * k_sums), np.empty(m * k_sums), np.empty(m * k_sums)
-        _convert(x, m * k_sums, f0, f1, f2)
-        _scatter(idx[a:a + m], m, f0, f1, f2, slot, rows, count, limbs, used, tally)
+        _scatter(x, idx[a:a + m], m, slot, rows, count, limbs, used, tally)
     return idx.size
 
 
@@ -316,7 +322,6 @@ def add_budget(idx, terms, angles, slot, rows, count, limbs, used, tally,
     k_sums = limbs.shape[1]
     x = np.empty(BLOCK * k_sums)
     bins = np.empty(BLOCK, np.int64)
-    f0, f1, f2 = np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums), np.empty(BLOCK * k_sums)
     for a in range(start, idx.size, BLOCK):
         m = min(BLOCK, idx.size - a)
         if not _room(m, slot, rows, used):
@@ -326,8 +331,7 @@ def add_budget(idx, terms, angles, slot, rows, count, limbs, used, tally,
             if idx[a + j] >= 0 and _budget_row(terms, angles, a + j, x, n * k_sums):
                 bins[n] = idx[a + j]
                 n += 1
-        _convert(x, n * k_sums, f0, f1, f2)
-        _scatter(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
+        _scatter(x, bins, n, slot, rows, count, limbs, used, tally)
     return idx.size
 
 

@@ -1,12 +1,14 @@
 """One compiled pass from per-superpixel radiance to a raw mosaic: charge, shot noise, read
 noise, gain, black level, ADC (the physics is :mod:`simulators.sensor`'s docstring).
 
-Random numbers are counter-based: pixel p of a frame draws its k-th uniform from the
-SplitMix64 mix of (frame key, p, k), so a frame depends only on its key and is the same on
-any number of threads. Shot noise is Poisson(μ): drawn exactly below
+Random numbers are counter-based (:mod:`simulators.counter_rng`): pixel p of a frame draws its
+k-th uniform from the SplitMix64 mix of (frame key, p, k), so a frame depends only on its key
+and is the same on any number of threads. Shot noise is Poisson(μ): drawn exactly below
 :data:`EXACT_POISSON_BELOW_E` electrons (multiplication method below 10, Hörmann's transformed
 rejection PTRS above), and above it as the normal limit round(μ + √μ·z), whose skewness 1/√μ
-is under 0.032 there (mean and variance μ either way). Read noise is normal (Box–Muller).
+is under 0.032 there (mean and variance μ either way). Read noise is normal. Normals come from
+the ziggurat (:mod:`simulators.ziggurat`: one draw, no transcendental function, most of the
+time; Box–Muller's logarithm, sine and cosine took most of a pixel's time).
 """
 
 from __future__ import annotations
@@ -16,33 +18,13 @@ import math
 import numba
 import numpy as np
 
+from simulators.counter_rng import GAMMA, frame_key, mix, uniform
+from simulators.ziggurat import normal
+
+__all__ = ["EXACT_POISSON_BELOW_E", "expose_mosaic", "frame_key"]
+
 EXACT_POISSON_BELOW_E = 1000.0
 """Expected charge (e⁻) under which shot noise is drawn from the exact Poisson law."""
-
-_GAMMA = np.uint64(0x9E3779B97F4A7C15)  # SplitMix64's increment (2⁶⁴ / golden ratio)
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
-_TWO_PI = 2.0 * math.pi
-
-
-def frame_key(sensor_seed: int, frame_seed: int) -> np.uint64:
-    """The 64-bit key of one frame's noise, from (sensor seed, frame seed)."""
-    return np.random.SeedSequence([sensor_seed, frame_seed]).generate_state(1, np.uint64)[0]
-
-
-@numba.njit(cache=True, inline="always")
-def _mix(z: np.uint64) -> np.uint64:
-    """SplitMix64's output function: a bijective scramble of 64 bits."""
-    z = (z ^ (z >> np.uint64(30))) * _M1
-    z = (z ^ (z >> np.uint64(27))) * _M2
-    return z ^ (z >> np.uint64(31))
-
-
-@numba.njit(cache=True, inline="always")
-def _uniform(stream: np.uint64, k: int) -> float:
-    """The k-th uniform of a pixel's stream, in the open interval (0, 1)."""
-    x = _mix(stream + np.uint64(k + 1) * _GAMMA)
-    return (float(x >> np.uint64(11)) + 0.5) * (1.0 / 9007199254740992.0)
 
 
 @numba.njit(cache=True)
@@ -50,11 +32,11 @@ def _poisson_small(mu: float, limit: float, stream: np.uint64, k: int) -> tuple[
     """Poisson(μ < 10) by multiplying uniforms (Knuth) down to ``limit`` = exp(−μ); returns
     (count, next draw index)."""
     count = 0.0
-    product = _uniform(stream, k)
+    product = uniform(stream, k)
     k += 1
     while product > limit:
         count += 1.0
-        product *= _uniform(stream, k)
+        product *= uniform(stream, k)
         k += 1
     return count, k
 
@@ -69,8 +51,8 @@ def _poisson_ptrs(mu: float, stream: np.uint64, k: int) -> tuple[float, int]:
     inv_alpha = 1.1239 + 1.1328 / (b - 3.4)
     vr = 0.9277 - 3.6224 / (b - 2.0)
     while True:
-        u = _uniform(stream, k) - 0.5
-        v = _uniform(stream, k + 1)
+        u = uniform(stream, k) - 0.5
+        v = uniform(stream, k + 1)
         k += 2
         us = 0.5 - abs(u)
         count = math.floor((2.0 * a / us + b) * u + mu + 0.43)
@@ -90,15 +72,14 @@ def _pixel_dn(mu: float, limit: float, stream: np.uint64, full_well_e: float, in
               sigma_dn: float, black_dn: float, adc_max: float) -> float:
     """One pixel's raw value (DN) for an expected charge ``mu`` (e⁻); ``limit`` = exp(−μ)
     (used below 10 e⁻)."""
-    r = math.sqrt(-2.0 * math.log(_uniform(stream, 0)))
-    angle = _TWO_PI * _uniform(stream, 1)
+    read, k = normal(stream, 0)
     if mu >= EXACT_POISSON_BELOW_E:
-        charge = max(math.floor(mu + math.sqrt(mu) * r * math.cos(angle) + 0.5), 0.0)
+        charge = max(math.floor(mu + math.sqrt(mu) * normal(stream, k)[0] + 0.5), 0.0)
     elif mu >= 10.0:
-        charge = _poisson_ptrs(mu, stream, 2)[0]
+        charge = _poisson_ptrs(mu, stream, k)[0]
     else:
-        charge = _poisson_small(mu, limit, stream, 2)[0]
-    dn = min(charge, full_well_e) * inv_gain + sigma_dn * r * math.sin(angle) + black_dn
+        charge = _poisson_small(mu, limit, stream, k)[0]
+    dn = min(charge, full_well_e) * inv_gain + sigma_dn * read + black_dn
     return min(max(math.floor(dn + 0.5), 0.0), adc_max)
 
 
@@ -159,7 +140,7 @@ def _expose_row(r, radiance, response, key, active, dark_e_per_s, exposure_s, fu
         if 0 <= ar < height and 0 <= ac < width:
             colour = (ar & 1) + (ac & 1)  # RGGB: R 0, G 1, B 2
             mu += radiance[ar >> 1, ac >> 1, colour] * response[ar, ac]
-        stream = _mix(key ^ (np.uint64(r * cols + c) * _GAMMA))
+        stream = mix(key ^ (np.uint64(r * cols + c) * GAMMA))
         mu = min(mu * exposure_s, cap)
         if mu != last_mu and not mu >= 10.0:  # exp(−μ) once per run of equal μ (dark pixels)
             last_mu = mu

@@ -14,7 +14,9 @@ uncalibrated capture of the issue's GGX material about its specular peak, reduce
   peak bins are off by percents, tens of times their noise.
 
 The image-based reduction corrects it too (on the sphere rig at 0.3× resolution: its peak
-bins' errors over their noise spread within 0.7–1.3, well under the uncorrected spread)."""
+bins' errors over their noise spread within 0.7–1.4, well under the uncorrected spread). That
+spread is 1.22 on average, 1.13–1.31 over seeds 1–8 (sd 0.06; 2.1–2.2 uncorrected): the budget
+misses about a fifth of the image-based peak bins' error, and the bound is that mean + 3 sd."""
 
 from __future__ import annotations
 
@@ -153,4 +155,4 @@ def test_the_image_based_reduction_corrects_it_too(tmp_path: Path) -> None:
           "uncorrected")
     assert "backlash" in terms and "angular" not in terms and "backlash" not in raw_terms
     assert z.size >= 100
-    assert 0.7 <= float(np.std(z)) <= 1.3 and np.std(raw) > 1.5 * np.std(z)
+    assert 0.7 <= float(np.std(z)) <= 1.4 and np.std(raw) > 1.5 * np.std(z)

@@ -11,8 +11,8 @@ Every value v is split into three doubles at fixed binary points (:func:`_conver
 vectorised pass over a block, for the six sums of a value store; inline in the loop that sums
 them, :func:`_scatter`, for other stores): p₂ = v rounded to an integer, p₁ = the rest
 rounded to a multiple of 2^-44, p₀ = what is left rounded to a multiple of 2^-88, each
-rounding to nearest, ties to even, by adding and subtracting a constant (exact but for that rounding, no fast-math). Then
-p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
+rounding to nearest, ties to even, by adding and subtracting a constant (exact but for that
+rounding, no fast-math). Then p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
 :func:`acquisition.tables.fixedpoint.to_limbs` gives in numpy, so both backends hold the same
 sums. Consecutive samples of one bin (a run: an image fills a bin with runs of neighbouring
 pixels) are summed part by part in float64, which is exact: every p₂ is an integer below 2^40,

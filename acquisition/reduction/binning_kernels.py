@@ -78,7 +78,7 @@ def _budget_into(xb, q, var, rgb, rel, i, ti, tr, d):  # pragma: no cover - comp
     xb[q + 12], xb[q + 13], xb[q + 14] = ti * tr, ti * d, tr * d
     ok = True
     for k in range(BUDGET_SUMS):
-        ok = ok and np.isfinite(xb[q + k])
+        ok &= np.isfinite(xb[q + k])  # no short circuit: a branch-free loop
     return ok
 
 

@@ -10,9 +10,9 @@ straight into the MERL and isotropic tables' exact sums, in two passes.
   :func:`~acquisition.tables.kernels.iso_block`), at the row's offset in flat arrays.
 * :func:`value_rows` takes the valid candidates (the linearized frame's validity), computes
   their BRDF and variance as :func:`.sample_kernels._brdf_row` does, and adds them, with the
-  bins and poses found before, to the exact sums through the fused binning kernels' own
-  functions (:func:`~acquisition.tables.exact_kernels.add_block`,
-  :func:`.binning_kernels.iso_block_sums`), a batch of :data:`BATCH` samples at a time.
+  bins and poses found before, to the exact sums, a batch of :data:`BATCH` samples at a time,
+  in one pass over it (:func:`_sum_batch`: each value split once for both tables, each store
+  summing its own runs; the exact sums' own primitives).
 
 So the tables get the samples that :func:`~acquisition.reduction.imaging.pixel_samples` gives,
 binned as :func:`~acquisition.reduction.fusedbinning.bin_frame` bins them: the same integers,
@@ -46,10 +46,10 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction import imaging_kernels as k  # noqa: E402
-from acquisition.reduction.binning_kernels import iso_block_sums, iso_buffers  # noqa: E402
+from acquisition.reduction.binning_kernels import BUDGET_SUMS, _budget_into  # noqa: E402
 from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
 from acquisition.reduction.sample_kernels import BUFFER_ROWS, _geometry_row  # noqa: E402
-from acquisition.tables.exact_kernels import BLOCK, _room, add_block  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, DROP_NAN, _convert, _room, _scatter, _scatter6  # noqa: E402
 from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
@@ -108,17 +108,67 @@ def _has_room(n, v, b, m):  # pragma: no cover - compiled
     return _room(n, v[0], v[1], v[4]) and _room(n, b[0], b[1], b[4]) and _room(n, m[0], m[1], m[4])
 
 
+@njit(inline="always", **_JIT)
+def _verdict(b, finite, n_bins, tally):  # pragma: no cover - compiled
+    """Whether a sample of bin ``b`` joins a store of ``n_bins`` bins; a dropped one is counted
+    in ``tally`` as :func:`~acquisition.tables.exact_kernels.add_block` counts it (NaN: [1],
+    out of range: [2])."""
+    if b == DROP_NAN or not finite:
+        tally[1] += 1
+        return False
+    if b < 0 or b >= n_bins:
+        tally[2] += 1
+        return False
+    return True
+
+
 @njit(**_JIT)
-def _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
+def sum_buffers():  # pragma: no cover - compiled
+    """Scratch of :func:`_sum_batch`: the values (x, x² per channel) of :data:`BLOCK` samples
+    and their parts, the MERL and isotropic bins (−1: dropped), budget values and their bins."""
+    return (np.empty(6 * BLOCK), np.empty((3, 6 * BLOCK)), np.empty(BLOCK, np.int64),
+            np.empty(BLOCK, np.int64), np.empty(BUDGET_SUMS * BLOCK), np.empty(BLOCK, np.int64))
+
+
+@njit(**_JIT)
+def _sum_block(a, n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
+               work):  # pragma: no cover - compiled
+    """Samples a … a + n − 1 (n ≤ BLOCK) of the batch into the stores: their values split
+    once (:func:`~acquisition.tables.exact_kernels._convert`) for both tables, each table's
+    runs then summed from the same parts."""
+    x, parts, mb, ib, xb, bb = work
+    n_merl, n_iso = m[0].size, v[0].size
+    kept = nb = 0
+    for j in range(a, a + n):
+        finite = np.isfinite(f[j, 0] + f[j, 1] + f[j, 2])
+        to_merl = _verdict(mi[j], finite, n_merl, m[5])
+        to_iso = _verdict(ii[j], finite, n_iso, v[5])
+        if not (to_merl or to_iso):
+            continue
+        for c in range(3):
+            x[6 * kept + c] = f[j, c]
+            x[6 * kept + 3 + c] = f[j, c] * f[j, c]
+        mb[kept] = mi[j] if to_merl else -1
+        ib[kept] = ii[j] if to_iso else -1
+        kept += 1
+        if to_iso and budget and _budget_into(xb, BUDGET_SUMS * nb, var, f, rel, j, t0[j],
+                                                t1[j], t2[j]):
+            bb[nb] = ii[j]
+            nb += 1
+    _convert(x, 6 * kept, parts[0], parts[1], parts[2])
+    _scatter6(mb, kept, parts[0], parts[1], parts[2], m[0], m[1], m[2], m[3], m[4], m[5])
+    _scatter6(ib, kept, parts[0], parts[1], parts[2], v[0], v[1], v[2], v[3], v[4], v[5])
+    _scatter(xb, bb, nb, b[0], b[1], b[2], b[3], b[4], b[5])
+
+
+@njit(**_JIT)
+def _sum_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
                work):  # pragma: no cover - compiled
     """The batch's first ``n`` samples into the MERL store ``m`` and the isotropic value and
-    budget stores ``v``, ``b`` (each: slot, rows, count, limbs, used, tally)."""
-    for q in range(0, n, BLOCK):
-        c = min(BLOCK, n - q)
-        add_block(mi[q:q + c], f, q, m[0], m[1], m[2], m[3], m[4], m[5])
-        iso_block_sums(t0[q:q + c], t1[q:q + c], t2[q:q + c], ii[q:q + c], q, c, f, var, rel,
-                       budget, v[0], v[1], v[2], v[3], v[4], v[5],
-                       b[0], b[1], b[2], b[3], b[4], b[5], work)
+    budget stores ``v``, ``b`` (each: slot, rows, count, limbs, used, tally), which have room
+    for them: the samples, drops and integers of ``add_block`` and ``iso_block_sums``."""
+    for a in range(0, n, BLOCK):
+        _sum_block(a, min(BLOCK, n - a), f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
 
 
 @njit(**_JIT)
@@ -135,7 +185,7 @@ def value_rows(frame, variance, first, stop, geometry, rel, budget, v, b, m,
     f, var = np.empty((size, 3)), np.empty((size, 3))
     mi, ii = np.empty(size, np.int64), np.empty(size, np.int64)
     t0, t1, t2 = np.empty(size), np.empty(size), np.empty(size)
-    work = iso_buffers()
+    work = sum_buffers()
     n, batch_first = 0, first
     samples, big_f, big_var = 0, found[1], found[2]
     for i in range(first, stop):
@@ -143,7 +193,7 @@ def value_rows(frame, variance, first, stop, geometry, rel, budget, v, b, m,
         if count == 0:
             continue
         if n + count > BATCH:
-            _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
+            _sum_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
             samples += n
             n, batch_first = 0, i
         if not _has_room(n + count, v, b, m):
@@ -174,7 +224,7 @@ def value_rows(frame, variance, first, stop, geometry, rel, budget, v, b, m,
             t0[n], t1[n], t2[n] = ti[j], tr[j], dp[j]
             n += 1
     if n:
-        _bin_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
+        _sum_batch(n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m, work)
         samples += n
     found[0] += samples
     found[1], found[2] = big_f, big_var

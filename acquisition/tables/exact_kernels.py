@@ -70,20 +70,21 @@ additions per flush, fewer than CARRY_EVERY = 2^18 additions ever sit on its low
 assert (1 << _CARRY_SHIFT) + RUN_MAX <= CARRY_EVERY
 
 
+@njit(inline="always", **_JIT)
+def split(v):  # pragma: no cover - compiled
+    """(p₀, p₁, p₂) of v (finite, |v| < 2^40): p₂ an integer, p₁ a multiple of 2^-44, p₀ one
+    of 2^-88, whose sum is v rounded to a multiple of 2^-88, ties to even."""
+    p2 = (v + _ROUND_1) - _ROUND_1
+    r = v - p2
+    p1 = (r + _ROUND_2_44) - _ROUND_2_44
+    return ((r - p1) + _ROUND_2_88) - _ROUND_2_88, p1, p2
+
+
 @njit(**_JIT)
 def _convert(x, n, f0, f1, f2):  # pragma: no cover - compiled
-    """x[q] (q < n, finite, |x| < 2^40) split into f2[q] (an integer), f1[q] (a multiple of
-    2^-44) and f0[q] (a multiple of 2^-88) with f2 + f1 + f0 = x rounded to a multiple of
-    2^-88, ties to even: a loop of adds and subtracts that LLVM vectorises."""
+    """x[q] (q < n) split (:func:`split`) into f0[q], f1[q], f2[q]: a loop LLVM vectorises."""
     for q in range(n):
-        v = x[q]
-        p2 = (v + _ROUND_1) - _ROUND_1
-        r = v - p2
-        p1 = (r + _ROUND_2_44) - _ROUND_2_44
-        r = r - p1
-        f0[q] = (r + _ROUND_2_88) - _ROUND_2_88
-        f1[q] = p1
-        f2[q] = p2
+        f0[q], f1[q], f2[q] = split(x[q])
 
 
 @njit(**_JIT)
@@ -117,7 +118,7 @@ def _row(b, slot, rows, used):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def _flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
+def flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
     """Add a run's ``run`` samples and the exact float sums ``acc`` (3, sums) of their parts
     (rows p₀, p₁, p₂) to row ``s``'s limbs, and zero ``acc``."""
     for k in range(limbs.shape[1]):
@@ -146,27 +147,29 @@ def _scatter(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma: no c
         _convert(x, 6 * n, f0, f1, f2)
         _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
         return
-    acc = np.zeros((3, k_sums))
-    lo, mid, top = acc[0], acc[1], acc[2]
+    _scatter_rows(x[:n * k_sums].reshape(n, k_sums), bins, n, slot, rows, count, limbs, used,
+                  tally, np.zeros((3, k_sums)))
+
+
+@njit(**_JIT)
+def _scatter_rows(x, bins, n, slot, rows, count, limbs, used, tally, acc):  # pragma: no cover
+    """:func:`_scatter` of the values x (n, K) with the run sums ``acc`` (3, K), zeros (a
+    2-D ``x`` and an ``acc`` given, not made here: LLVM vectorises this loop twice as well)."""
     current, s, run = -1, -1, 0
     for j in range(n):
         b = bins[j]
         if b != current or run == RUN_MAX:  # a run's float sums stay exact
             if run:
-                _flush(s, run, acc, count, limbs, tally)
+                flush(s, run, acc, count, limbs, tally)
             current, s, run = b, _row(b, slot, rows, used), 0
-        q = j * k_sums
-        for k in range(k_sums):  # as _convert, each part straight into its sum
-            v = x[q + k]
-            p2 = (v + _ROUND_1) - _ROUND_1
-            r = v - p2
-            p1 = (r + _ROUND_2_44) - _ROUND_2_44
-            lo[k] += ((r - p1) + _ROUND_2_88) - _ROUND_2_88
-            mid[k] += p1
-            top[k] += p2
+        for k in range(x.shape[1]):
+            p0, p1, p2 = split(x[j, k])
+            acc[0, k] += p0
+            acc[1, k] += p1
+            acc[2, k] += p2
         run += 1
     if run:
-        _flush(s, run, acc, count, limbs, tally)
+        flush(s, run, acc, count, limbs, tally)
     tally[0] += n
 
 
@@ -183,11 +186,14 @@ _ZERO6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 @njit(**_JIT)
 def _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pragma: no cover
     """:func:`_scatter` for six sums (x, x² of RGB), the run's sums of each part held in
-    registers (numba keeps scalars, not a small array, in registers: twice as fast)."""
+    registers (numba keeps scalars, not a small array, in registers: twice as fast); a
+    negative bin is a sample this store leaves out."""
     low = mid = top = _ZERO6  # the sums of the p₀, p₁ and p₂ parts
-    current, s, run = -1, -1, 0
+    current, s, run, added = -1, -1, 0, 0
     for j in range(n + 1):
         b = bins[j] if j < n else -1
+        if b < 0 and j < n:  # a sample this store drops (pixelbinning: one of its tables)
+            continue
         if b != current or run == RUN_MAX:  # a run's float sums stay exact
             if run:
                 _flush6(s, run, low, mid, top, count, limbs, tally)
@@ -198,12 +204,13 @@ def _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pr
         q = 6 * j
         low, mid, top = _plus6(low, f0, q), _plus6(mid, f1, q), _plus6(top, f2, q)
         run += 1
-    tally[0] += n
+        added += 1
+    tally[0] += added
 
 
 @njit(inline="always", **_JIT)
 def _flush6(s, run, low, mid, top, count, limbs, tally):  # pragma: no cover - compiled
-    """:func:`_flush` of a run's six sums given as tuples of their parts' exact float sums."""
+    """:func:`flush` of a run's six sums given as tuples of their parts' exact float sums."""
     for k in range(6):
         limbs[s, k, 0] += np.int64(low[k] * _TWO_88)
         limbs[s, k, 1] += np.int64(mid[k] * _TWO_44)

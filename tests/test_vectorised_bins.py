@@ -19,7 +19,7 @@ _JIT = {"fastmath": False, "error_model": "numpy"}
 @njit(**_JIT)
 def _merl_libm_all(wi, wo, out):  # pragma: no cover - compiled
     for i in range(wi.shape[0]):
-        out[i] = kernels._merl_flat_vectors(wi, wo, i)
+        out[i] = kernels._merl_flat_pair(wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2])
 
 
 @njit(**_JIT)

@@ -5,8 +5,8 @@ straight into the MERL and isotropic tables' exact sums, in two passes.
   still being decoded. Row by row, over each row's span of columns that can see the sample,
   the geometry goes through :mod:`.sample_kernels`' own SIMD row function; each pixel that sees
   the sample with cos θi and cos θr ≥ the minimum (a *candidate*) gets its column, its
-  cos θi / r², its MERL bin (:func:`~acquisition.tables.kernels.merl_block_vectors`), its
-  pose and isotropic bin (:func:`.pose_kernels.block_poses`,
+  cos θi / r², its MERL bin (:func:`~acquisition.tables.kernels.merl_block_columns`), its
+  pose and isotropic bin (:func:`.pose_kernels._contiguous_poses`,
   :func:`~acquisition.tables.kernels.iso_block`), at the row's offset in flat arrays.
 * :func:`value_rows` takes the valid candidates (the linearized frame's validity), computes
   their BRDF and variance as :func:`.sample_kernels._brdf_row` does, and adds them, with the
@@ -47,10 +47,10 @@ from numba import njit  # noqa: E402
 
 from acquisition.reduction import imaging_kernels as k  # noqa: E402
 from acquisition.reduction.binning_kernels import BUDGET_SUMS, _budget_into  # noqa: E402
-from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
+from acquisition.reduction.pose_kernels import _contiguous_poses  # noqa: E402
 from acquisition.reduction.sample_kernels import BUFFER_ROWS, _geometry_row  # noqa: E402
 from acquisition.tables.exact_kernels import BLOCK, DROP_NAN, _convert, _room, _scatter, _scatter6  # noqa: E402
-from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
+from acquisition.tables.kernels import iso_block, merl_block_columns  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 BATCH = 4096
@@ -68,38 +68,41 @@ def geometry_rows(frame, spans, first, stop, offsets, ncand, cols, e, midx, iidx
     table folds it), degrees."""
     p, xs, min_cos = frame
     lo, hi = spans
-    w = xs.size
-    buf = np.empty((BUFFER_ROWS, w))
-    wi, wo = np.empty((w, 3)), np.empty((w, 3))
-    scratch, angles = np.empty((6, BLOCK)), np.empty((4, BLOCK))
-    idx, bins = np.empty(BLOCK, np.int64), np.empty(BLOCK, np.int64)
+    buf = np.empty((BUFFER_ROWS, xs.size))
+    pairs, raw_dp = np.empty((6, BLOCK)), np.empty(BLOCK)
     for i in range(first, stop):
         a, c = lo[i], hi[i]
         ncand[i] = 0
         if a >= c:
             continue
         _geometry_row(p, xs[a:c], (i - p[k.CY]) / p[k.FY], min_cos, buf)
-        o, n = offsets[i], 0
+        o, n, m = offsets[i], 0, 0
         for j in range(c - a):
             if buf[0, j] != 0.0:
-                for q in range(3):
-                    wi[n, q] = buf[1 + q, j]
-                    wo[n, q] = buf[4 + q, j]
+                for q in range(6):
+                    pairs[q, m] = buf[1 + q, j]
                 cols[o + n] = a + j
                 e[o + n] = buf[7, j]
                 n += 1
-        for q in range(0, n, BLOCK):
-            m = min(BLOCK, n - q)
-            merl_block_vectors(wi, wo, q, m, scratch, idx)
-            block_poses(wi, wo, q, m, scratch, angles[0], angles[1], angles[2])
-            iso_block(angles[0], angles[1], angles[2], m, ei, er, ep, fold, bins, angles[3])
-            for j in range(m):
-                midx[o + q + j] = idx[j]
-                iidx[o + q + j] = bins[j]
-                ti[o + q + j] = angles[0, j]
-                tr[o + q + j] = angles[1, j]
-                dp[o + q + j] = angles[3, j]
+                m += 1
+                if m == BLOCK:
+                    _pair_bins(pairs, m, o + n - m, midx, iidx, ti, tr, dp, raw_dp, ei, er, ep,
+                               fold)
+                    m = 0
+        if m:
+            _pair_bins(pairs, m, o + n - m, midx, iidx, ti, tr, dp, raw_dp, ei, er, ep, fold)
         ncand[i] = n
+
+
+@njit(**_JIT)
+def _pair_bins(pairs, m, at, midx, iidx, ti, tr, dp, raw_dp, ei, er, ep,
+               fold):  # pragma: no cover - compiled
+    """The MERL bin, θi, θr, isotropic bin and binned Δφ of the m light/view pairs in the
+    columns of ``pairs`` (6, ≥ m) into those arrays from ``at`` on."""
+    end = at + m
+    merl_block_columns(pairs, m, midx[at:end])
+    _contiguous_poses(pairs, m, ti[at:end], tr[at:end], raw_dp)
+    iso_block(ti[at:end], tr[at:end], raw_dp, m, ei, er, ep, fold, iidx[at:end], dp[at:end])
 
 
 @njit(**_JIT)

@@ -160,10 +160,9 @@ def _halfdiff_vectors(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def _merl_flat_vectors(wi, wo, i):  # pragma: no cover - compiled
-    """Flat MERL index of the light/view pair ``i``: below the horizon −1, NaN −2."""
-    ix, iy, iz = wi[i, 0], wi[i, 1], wi[i, 2]
-    ox, oy, oz = wo[i, 0], wo[i, 1], wo[i, 2]
+def _merl_flat_pair(ix, iy, iz, ox, oy, oz):  # pragma: no cover - compiled
+    """Flat MERL index of the light/view pair (ix, iy, iz), (ox, oy, oz): below the horizon
+    −1, NaN −2."""
     th, td, pd = _halfdiff_vectors(ix, iy, iz, ox, oy, oz)
     b = _merl_flat_rad(th, td, pd)
     if not (iz > 0.0 and oz > 0.0):
@@ -216,15 +215,22 @@ def _merl_guarded(c, m, out):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def merl_block_vectors(wi, wo, a, m, scratch, out):  # pragma: no cover - compiled
-    """Flat MERL index of pairs a … a + m − 1 (m ≤ PAIR_BLOCK) into out[:m], equal to
-    :func:`_merl_flat_vectors`'s: vectorised and guarded (:func:`_merl_guarded`), libm's
+def merl_block_columns(c, m, out):  # pragma: no cover - compiled
+    """Flat MERL index of the m pairs in the columns of c (6, ≥ m) into out[:m], equal to
+    :func:`_merl_flat_pair`'s: vectorised and guarded (:func:`_merl_guarded`), libm's
     arithmetic for the few near a bin edge (and NaN, below the horizon, straight up)."""
-    pair_columns(wi, wo, a, m, scratch)
-    _merl_guarded(scratch, m, out)
+    _merl_guarded(c, m, out)
     for j in range(m):
         if out[j] == SLOW:
-            out[j] = _merl_flat_vectors(wi, wo, a + j)
+            out[j] = _merl_flat_pair(c[0, j], c[1, j], c[2, j], c[3, j], c[4, j], c[5, j])
+
+
+@njit(**_JIT)
+def merl_block_vectors(wi, wo, a, m, scratch, out):  # pragma: no cover - compiled
+    """:func:`merl_block_columns` of pairs a … a + m − 1 (m ≤ PAIR_BLOCK) of wi and wo (N, 3),
+    through ``scratch`` (6, ≥ m)."""
+    pair_columns(wi, wo, a, m, scratch)
+    merl_block_columns(scratch, m, out)
 
 
 @njit(**_JIT)

@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction.pose_kernels import block_poses  # noqa: E402
-from acquisition.tables.exact_kernels import BLOCK, _room, _scatter, add_block  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, PAD, _room, _scatter, add_block, scatter_padded  # noqa: E402
 from acquisition.tables.kernels import iso_block, merl_block_vectors  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
@@ -52,6 +52,7 @@ DROP_NAN = -2
 BUDGET_SUMS = 15
 """The budget's sums per sample: noise variance (3), white reference's u (3), the angles (3)
 and their products (6): :class:`acquisition.tables.uncertainty.UncertaintySums`' order."""
+assert BUDGET_SUMS <= PAD  # rows of scatter_padded
 
 
 @njit(**_JIT)
@@ -106,8 +107,9 @@ def iso_frame(wi, wo, rgb, var, rel, budget, ei, er, ep, fold,
 
 @njit(**_JIT)
 def iso_buffers():  # pragma: no cover - compiled
-    """Scratch of :func:`iso_block_sums`: values, budget and their bins."""
-    return (np.empty(BLOCK * 6), np.empty(BLOCK * BUDGET_SUMS), np.empty(BLOCK, np.int64),
+    """Scratch of :func:`iso_block_sums`: values, budget (rows padded with zeros to PAD) and
+    their bins."""
+    return (np.empty(BLOCK * 6), np.zeros((BLOCK, PAD)), np.empty(BLOCK, np.int64),
             np.empty(BLOCK, np.int64))
 
 
@@ -136,8 +138,8 @@ def iso_block_sums(ti_, tr_, d_, bins, a, m, rgb, var, rel, budget,
             xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
         bv[nv] = b
         nv += 1
-        if budget and _budget_into(xb, BUDGET_SUMS * nb, var, rgb, rel, i, ti, tr, d):
+        if budget and _budget_into(xb[nb], 0, var, rgb, rel, i, ti, tr, d):
             bb[nb] = b
             nb += 1
     _scatter(xv, bv, nv, slot, rows, count, limbs, used, tally)
-    _scatter(xb, bb, nb, bslot, brows, bcount, blimbs, bused, btally)
+    scatter_padded(xb, bb, nb, bslot, brows, bcount, blimbs, bused, btally)

@@ -46,10 +46,10 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.reduction import imaging_kernels as k  # noqa: E402
-from acquisition.reduction.binning_kernels import BUDGET_SUMS, _budget_into  # noqa: E402
+from acquisition.reduction.binning_kernels import _budget_into  # noqa: E402
 from acquisition.reduction.pose_kernels import _contiguous_poses  # noqa: E402
 from acquisition.reduction.sample_kernels import BUFFER_ROWS, _geometry_row  # noqa: E402
-from acquisition.tables.exact_kernels import BLOCK, DROP_NAN, _convert, _room, _scatter, _scatter6  # noqa: E402
+from acquisition.tables.exact_kernels import BLOCK, DROP_NAN, PAD, _convert, _room, _scatter6, scatter_padded  # noqa: E402
 from acquisition.tables.kernels import iso_block, merl_block_columns  # noqa: E402
 
 _JIT = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
@@ -128,9 +128,10 @@ def _verdict(b, finite, n_bins, tally):  # pragma: no cover - compiled
 @njit(**_JIT)
 def sum_buffers():  # pragma: no cover - compiled
     """Scratch of :func:`_sum_batch`: the values (x, x² per channel) of :data:`BLOCK` samples
-    and their parts, the MERL and isotropic bins (−1: dropped), budget values and their bins."""
+    and their parts, the MERL and isotropic bins (−1: dropped), budget values (rows padded
+    with zeros to PAD) and their bins."""
     return (np.empty(6 * BLOCK), np.empty((3, 6 * BLOCK)), np.empty(BLOCK, np.int64),
-            np.empty(BLOCK, np.int64), np.empty(BUDGET_SUMS * BLOCK), np.empty(BLOCK, np.int64))
+            np.empty(BLOCK, np.int64), np.zeros((BLOCK, PAD)), np.empty(BLOCK, np.int64))
 
 
 @njit(**_JIT)
@@ -154,14 +155,13 @@ def _sum_block(a, n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
         mb[kept] = mi[j] if to_merl else -1
         ib[kept] = ii[j] if to_iso else -1
         kept += 1
-        if to_iso and budget and _budget_into(xb, BUDGET_SUMS * nb, var, f, rel, j, t0[j],
-                                                t1[j], t2[j]):
+        if to_iso and budget and _budget_into(xb[nb], 0, var, f, rel, j, t0[j], t1[j], t2[j]):
             bb[nb] = ii[j]
             nb += 1
     _convert(x, 6 * kept, parts[0], parts[1], parts[2])
     _scatter6(mb, kept, parts[0], parts[1], parts[2], m[0], m[1], m[2], m[3], m[4], m[5])
     _scatter6(ib, kept, parts[0], parts[1], parts[2], v[0], v[1], v[2], v[3], v[4], v[5])
-    _scatter(xb, bb, nb, b[0], b[1], b[2], b[3], b[4], b[5])
+    scatter_padded(xb, bb, nb, b[0], b[1], b[2], b[3], b[4], b[5])
 
 
 @njit(**_JIT)

@@ -173,6 +173,34 @@ def _scatter_rows(x, bins, n, slot, rows, count, limbs, used, tally, acc):  # pr
     tally[0] += n
 
 
+PAD = 16
+"""Columns of :func:`scatter_padded`'s values: a store's K ≤ PAD sums, then zeros."""
+
+
+@njit(**_JIT)
+def scatter_padded(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma: no cover
+    """:func:`_scatter` of the first n rows of x (·, PAD), each row a sample's K sums (K =
+    the store's, ≤ PAD) then zeros: the loop over a row has a constant length, which LLVM
+    turns into whole vectors (1.7× :func:`_scatter_rows` for the budget's 15 sums)."""
+    acc = np.zeros((3, PAD))
+    current, s, run = -1, -1, 0
+    for j in range(n):
+        b = bins[j]
+        if b != current or run == RUN_MAX:  # a run's float sums stay exact
+            if run:
+                flush(s, run, acc, count, limbs, tally)
+            current, s, run = b, _row(b, slot, rows, used), 0
+        for k in range(PAD):
+            p0, p1, p2 = split(x[j, k])
+            acc[0, k] += p0
+            acc[1, k] += p1
+            acc[2, k] += p2
+        run += 1
+    if run:
+        flush(s, run, acc, count, limbs, tally)
+    tally[0] += n
+
+
 @njit(inline="always", **_JIT)
 def _plus6(acc, f, q):  # pragma: no cover - compiled
     """The six sums ``acc`` plus f[q … q + 5] (a tuple: numba keeps it in registers)."""

@@ -222,7 +222,7 @@ def _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally):  # pr
         b = bins[j] if j < n else -1
         if b < 0 and j < n:  # a sample this store drops (pixelbinning: one of its tables)
             continue
-        if b != current or run == RUN_MAX:  # a run's float sums stay exact
+        if j == n or b != current or run == RUN_MAX:  # a run's float sums stay exact
             if run:
                 _flush6(s, run, low, mid, top, count, limbs, tally)
                 low = mid = top = _ZERO6

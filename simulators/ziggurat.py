@@ -1,5 +1,5 @@
 """Standard normal draws by Marsaglia and Tsang's ziggurat (2000) on the counter-based stream
-of :mod:`simulators.counter_rng`: one 64-bit draw gives a normal 98.8 % of the time, with no
+of :mod:`simulators.counter_rng`: one 64-bit draw gives a normal over 98 % of the time, with no
 transcendental function (the simulated sensor's read noise and large-charge shot noise).
 
 The half-density f(x) = exp(−x²/2) is covered by :data:`LAYERS` layers of equal area ``V``:

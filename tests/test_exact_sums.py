@@ -149,6 +149,27 @@ def test_backends_hold_the_same_integers_with_lazy_carries_and_runs():
     assert low.min() >= 0 and low.max() < 2**LIMB_BITS  # canonical
 
 
+def test_more_sums_than_a_padded_block_hold_the_same_integers_in_both_backends():
+    """A store of 21 sums (two blocks of exact_kernels.PAD columns, the second partly
+    padding): runs past RUN_MAX, a bin past several 2^17-sample carry points (whose second
+    block's sums are carried late) and values of both signs and many sizes give the integers
+    of the numpy backend (to_limbs per value), limb for limb."""
+    from acquisition.tables import exact_kernels
+
+    rng = np.random.default_rng(21)
+    k = 21
+    assert exact_kernels.PAD < k < 2 * exact_kernels.PAD
+    idx = np.concatenate([np.zeros(400_000, np.int64), rng.integers(0, 50, 30_000)])
+    vals = rng.normal(0, 1, (idx.size, k)) * 10.0 ** rng.uniform(-9, 9, (idx.size, k))
+    stores = []
+    for backend in BACKENDS:
+        store = ExactSums(50, k, backend=backend)
+        assert store.add_values(idx, vals) == idx.size
+        stores.append(store.sparse())
+    assert stores[0].same_as(stores[1])
+    assert int(stores[0].count[0]) > 400_000
+
+
 def test_float_sums_depend_on_the_split_exact_sums_do_not():
     """The same samples in two batch splits: naive float64 accumulation (what the tables did
     before) gives different sums; the exact accumulator gives the same bits."""

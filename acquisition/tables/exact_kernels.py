@@ -118,16 +118,17 @@ def _row(b, slot, rows, used):  # pragma: no cover - compiled
 
 
 @njit(**_JIT)
-def flush(s, run, acc, count, limbs, tally):  # pragma: no cover - compiled
-    """Add a run's ``run`` samples and the exact float sums ``acc`` (3, sums) of their parts
-    (rows p₀, p₁, p₂) to row ``s``'s limbs, and zero ``acc``."""
-    for k in range(limbs.shape[1]):
-        limbs[s, k, 0] += np.int64(acc[0, k] * _TWO_88)
-        limbs[s, k, 1] += np.int64(acc[1, k] * _TWO_44)
-        limbs[s, k, 2] += np.int64(acc[2, k])
-        acc[0, k] = 0.0
-        acc[1, k] = 0.0
-        acc[2, k] = 0.0
+def flush(s, run, acc, count, limbs, tally, first=0):  # pragma: no cover - compiled
+    """Add a run's exact float sums ``acc`` (3, ·) of their parts (rows p₀, p₁, p₂), for the
+    store's sums ``first`` … (as many as ``acc`` has columns and the store has sums), to row
+    ``s``'s limbs, and zero ``acc``; the sums from 0 also count the run's ``run`` samples."""
+    for k in range(min(acc.shape[1], limbs.shape[1] - first)):
+        limbs[s, first + k, 0] += np.int64(acc[0, k] * _TWO_88)
+        limbs[s, first + k, 1] += np.int64(acc[1, k] * _TWO_44)
+        limbs[s, first + k, 2] += np.int64(acc[2, k])
+    acc[:] = 0.0
+    if first:
+        return
     before = count[s]
     count[s] = before + run
     if (before >> _CARRY_SHIFT) != ((before + run) >> _CARRY_SHIFT) and carry_row(limbs, s):
@@ -139,65 +140,50 @@ def _scatter(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma: no c
     """Add value row j (entries j·K … j·K + K − 1 of ``x``; K sums) to bin ``bins[j]`` for
     j < n, consecutive samples of one bin summed first (images fill a bin with runs of
     pixels), at most :data:`RUN_MAX` at a time. Six sums go through :func:`_scatter6`;
-    others split each value and add its parts to the run's sums in one loop over the K sums
-    (contiguous: LLVM vectorises it)."""
+    others through :func:`scatter_padded` (a copy padded with zeros), which splits each value
+    and adds its parts to the run's sums."""
     k_sums = limbs.shape[1]
     if k_sums == 6:
         f0, f1, f2 = np.empty(6 * n), np.empty(6 * n), np.empty(6 * n)
         _convert(x, 6 * n, f0, f1, f2)
         _scatter6(bins, n, f0, f1, f2, slot, rows, count, limbs, used, tally)
         return
-    _scatter_rows(x[:n * k_sums].reshape(n, k_sums), bins, n, slot, rows, count, limbs, used,
-                  tally, np.zeros((3, k_sums)))
-
-
-@njit(**_JIT)
-def _scatter_rows(x, bins, n, slot, rows, count, limbs, used, tally, acc):  # pragma: no cover
-    """:func:`_scatter` of the values x (n, K) with the run sums ``acc`` (3, K), zeros (a
-    2-D ``x`` and an ``acc`` given, not made here: LLVM vectorises this loop twice as well)."""
-    current, s, run = -1, -1, 0
-    for j in range(n):
-        b = bins[j]
-        if b != current or run == RUN_MAX:  # a run's float sums stay exact
-            if run:
-                flush(s, run, acc, count, limbs, tally)
-            current, s, run = b, _row(b, slot, rows, used), 0
-        for k in range(x.shape[1]):
-            p0, p1, p2 = split(x[j, k])
-            acc[0, k] += p0
-            acc[1, k] += p1
-            acc[2, k] += p2
-        run += 1
-    if run:
-        flush(s, run, acc, count, limbs, tally)
-    tally[0] += n
+    width = -(-k_sums // PAD) * PAD
+    padded = np.zeros((n, width))
+    padded[:, :k_sums] = x[:n * k_sums].reshape(n, k_sums)
+    scatter_padded(padded, bins, n, slot, rows, count, limbs, used, tally)
 
 
 PAD = 16
-"""Columns of :func:`scatter_padded`'s values: a store's K ≤ PAD sums, then zeros."""
+"""Columns of :func:`scatter_padded`'s blocks of values."""
 
 
 @njit(**_JIT)
 def scatter_padded(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma: no cover
-    """:func:`_scatter` of the first n rows of x (·, PAD), each row a sample's K sums (K =
-    the store's, ≤ PAD) then zeros: the loop over a row has a constant length, which LLVM
-    turns into whole vectors (1.7× :func:`_scatter_rows` for the budget's 15 sums)."""
+    """:func:`_scatter` of the first n rows of x (·, W), each row a sample's K sums (K =
+    the store's) then zeros up to W, a multiple of :data:`PAD`: one pass over the samples per
+    block of PAD columns, whose loop over a row has a constant length, which LLVM turns into
+    whole vectors (1.7× a loop over K for the budget's 15 sums, which take one block). The
+    first block's runs count the samples and trigger the carry passes, so later blocks' sums
+    get theirs up to n samples late: n ≤ 2^16 keeps them within CARRY_EVERY's margin."""
+    assert n <= 1 << 16
     acc = np.zeros((3, PAD))
-    current, s, run = -1, -1, 0
-    for j in range(n):
-        b = bins[j]
-        if b != current or run == RUN_MAX:  # a run's float sums stay exact
-            if run:
-                flush(s, run, acc, count, limbs, tally)
-            current, s, run = b, _row(b, slot, rows, used), 0
-        for k in range(PAD):
-            p0, p1, p2 = split(x[j, k])
-            acc[0, k] += p0
-            acc[1, k] += p1
-            acc[2, k] += p2
-        run += 1
-    if run:
-        flush(s, run, acc, count, limbs, tally)
+    for c in range(0, x.shape[1], PAD):
+        current, s, run = -1, -1, 0
+        for j in range(n):
+            b = bins[j]
+            if b != current or run == RUN_MAX:  # a run's float sums stay exact
+                if run:
+                    flush(s, run, acc, count, limbs, tally, c)
+                current, s, run = b, _row(b, slot, rows, used), 0
+            for k in range(PAD):
+                p0, p1, p2 = split(x[j, c + k])
+                acc[0, k] += p0
+                acc[1, k] += p1
+                acc[2, k] += p2
+            run += 1
+        if run:
+            flush(s, run, acc, count, limbs, tally, c)
     tally[0] += n
 
 

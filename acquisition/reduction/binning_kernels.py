@@ -69,17 +69,17 @@ def merl_frame(wi, wo, rgb, slot, rows, count, limbs, used, tally, start):  # pr
 
 
 @njit(inline="always", **_JIT)
-def _budget_into(xb, q, var, rgb, rel, i, ti, tr, d):  # pragma: no cover - compiled
-    """Sample ``i``'s budget sums into xb[q …]; False when one is not finite."""
+def _budget_into(xb, var, rgb, rel, i, ti, tr, d):  # pragma: no cover - compiled
+    """Sample ``i``'s budget sums into xb[0 … BUDGET_SUMS − 1]; False when one is not finite."""
     for c in range(3):
-        xb[q + c] = var[i, c]
-        xb[q + 3 + c] = abs(rgb[i, c]) * rel[c]
-    xb[q + 6], xb[q + 7], xb[q + 8] = ti, tr, d
-    xb[q + 9], xb[q + 10], xb[q + 11] = ti * ti, tr * tr, d * d
-    xb[q + 12], xb[q + 13], xb[q + 14] = ti * tr, ti * d, tr * d
+        xb[c] = var[i, c]
+        xb[3 + c] = abs(rgb[i, c]) * rel[c]
+    xb[6], xb[7], xb[8] = ti, tr, d
+    xb[9], xb[10], xb[11] = ti * ti, tr * tr, d * d
+    xb[12], xb[13], xb[14] = ti * tr, ti * d, tr * d
     ok = True
     for k in range(BUDGET_SUMS):
-        ok &= np.isfinite(xb[q + k])  # no short circuit: a branch-free loop
+        ok &= np.isfinite(xb[k])  # no short circuit: a branch-free loop
     return ok
 
 
@@ -138,7 +138,7 @@ def iso_block_sums(ti_, tr_, d_, bins, a, m, rgb, var, rel, budget,
             xv[6 * nv + 3 + c] = rgb[i, c] * rgb[i, c]
         bv[nv] = b
         nv += 1
-        if budget and _budget_into(xb[nb], 0, var, rgb, rel, i, ti, tr, d):
+        if budget and _budget_into(xb[nb], var, rgb, rel, i, ti, tr, d):
             bb[nb] = b
             nb += 1
     _scatter(xv, bv, nv, slot, rows, count, limbs, used, tally)

@@ -155,7 +155,7 @@ def _sum_block(a, n, f, var, mi, ii, t0, t1, t2, rel, budget, v, b, m,
         mb[kept] = mi[j] if to_merl else -1
         ib[kept] = ii[j] if to_iso else -1
         kept += 1
-        if to_iso and budget and _budget_into(xb[nb], 0, var, f, rel, j, t0[j], t1[j], t2[j]):
+        if to_iso and budget and _budget_into(xb[nb], var, f, rel, j, t0[j], t1[j], t2[j]):
             bb[nb] = ii[j]
             nb += 1
     _convert(x, 6 * kept, parts[0], parts[1], parts[2])

@@ -7,23 +7,24 @@ takes the next free one. Samples go in blocks of :data:`BLOCK`; before a block a
 that the store has room for as many new bins, else it stops and returns the sample it stopped
 at, the caller grows the store and calls again from there (nothing is lost or added twice).
 
-Every value v is split into three doubles at fixed binary points (:func:`_convert`, a
-vectorised pass over a block, for the six sums of a value store; inline in the loop that sums
-them, :func:`_scatter`, for other stores): p₂ = v rounded to an integer, p₁ = the rest
-rounded to a multiple of 2^-44, p₀ = what is left rounded to a multiple of 2^-88, each
-rounding to nearest, ties to even, by adding and subtracting a constant (exact but for that
-rounding, no fast-math). Then p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to even: the integer
-:func:`acquisition.tables.fixedpoint.to_limbs` gives in numpy, so both backends hold the same
-sums. Consecutive samples of one bin (a run: an image fills a bin with runs of neighbouring
-pixels) are summed part by part in float64, which is exact: every p₂ is an integer below 2^40,
-every p₁ a multiple of 2^-44 below ½, every p₀ a multiple of 2^-88 below 2^-45, so the sums of
-up to :data:`RUN_MAX` of them need at most 53 bits (a longer run is added in pieces). At the
-run's end each part's sum goes to its limb as an integer (p₂'s to the top limb, p₁'s × 2^44 to
-the middle one, p₀'s × 2^88 to the low one): one conversion per run and sum, not per sample.
-The limbs differ from ``to_limbs``' one by one (signed, rounded), the integers they hold do
-not, and the carry pass makes them the same canonical limbs. A bin's lower limbs get a carry
-pass whenever its count crosses a multiple of 2^17; a top limb past the overflow bound is
-counted in ``tally[3]`` (the caller raises).
+Every value v is split into three doubles at fixed binary points (:func:`split`; in a
+vectorised pass over a block, :func:`_convert`, for the six sums of a value store; inline in
+the loop that sums them, :func:`scatter_padded`, for other stores): p₂ = v rounded to an
+integer, p₁ = the rest rounded to a multiple of 2^-44, p₀ = what is left rounded to a multiple
+of 2^-88, each rounding to nearest, ties to even, by adding and subtracting a constant (exact
+but for that rounding, no fast-math). Then p₂·2^88 + p₁·2^88 + p₀·2^88 = round(v·2^88), ties to
+even: the integer :func:`acquisition.tables.fixedpoint.to_limbs` gives in numpy, so both
+backends hold the same sums. Consecutive samples of one bin (a run: an image fills a bin with
+runs of neighbouring pixels) are summed part by part in float64, which is exact: every p₂ is an
+integer below 2^40, every p₁ a multiple of 2^-44 below ½, every p₀ a multiple of 2^-88 below
+2^-45, so the sums of up to :data:`RUN_MAX` of them need at most 53 bits (a longer run is added
+in pieces). At the run's end each part's sum goes to its limb as an integer (p₂'s to the top
+limb, p₁'s × 2^44 to the middle one, p₀'s × 2^88 to the low one): one conversion per run and
+sum, not per sample. The limbs differ from ``to_limbs``' one by one (signed, rounded), the
+integers they hold do not, and the carry pass makes them the same canonical limbs. A bin's
+lower limbs get a carry pass whenever its count crosses a multiple of 2^17 (sums past the first
+:data:`PAD` of a store, up to a block late); a top limb past the overflow bound is counted in
+``tally[3]`` (the caller raises).
 """
 
 from __future__ import annotations
@@ -163,9 +164,9 @@ def scatter_padded(x, bins, n, slot, rows, count, limbs, used, tally):  # pragma
     """:func:`_scatter` of the first n rows of x (·, W), each row a sample's K sums (K =
     the store's) then zeros up to W, a multiple of :data:`PAD`: one pass over the samples per
     block of PAD columns, whose loop over a row has a constant length, which LLVM turns into
-    whole vectors (1.7× a loop over K for the budget's 15 sums, which take one block). The
-    first block's runs count the samples and trigger the carry passes, so later blocks' sums
-    get theirs up to n samples late: n ≤ 2^16 keeps them within CARRY_EVERY's margin."""
+    whole vectors (the budget's 15 sums take one block). The first block's runs count the
+    samples and trigger the carry passes, so later blocks' sums get theirs up to n samples
+    late: n ≤ 2^16 keeps them within CARRY_EVERY's margin."""
     assert n <= 1 << 16
     acc = np.zeros((3, PAD))
     for c in range(0, x.shape[1], PAD):

@@ -14,12 +14,18 @@ samples of 6 M superpixels; light and camera 30° apart) is captured into a temp
   per-pixel geometry and binning into fresh MERL and isotropic tables, the budget tracked),
   with the white references read once beforehand (per session, not per frame);
 * the per-pixel path alone on the already linearized frame (:meth:`ImageReducer.bin_image`:
-  geometry and binning of every superpixel into both tables).
+  geometry and binning of every superpixel into both tables);
+* the floor of that path (:mod:`_per_pixel_floor`: its arithmetic with none of its
+  bookkeeping, the library's own compiled functions) over the same frame, on the same 2
+  threads (the rows in two halves of equal work).
 
 Figures (medians of the interleaved repeats, wall time on a shared machine):
 ``image_reduce_vs_decode`` = decode time / whole reduction time (goal ≥ 0.3, issue 15);
 ``image_per_pixel_msamples_per_s`` = samples binned per second of the per-pixel path / 1e6
-(goal ≥ 60); ``image_frame_superpixels_per_s`` = the same path's superpixels per second / 1e6;
+(goal ≥ 60); ``image_per_pixel_floor_msamples_per_s`` the floor's rate, and
+``image_per_pixel_vs_floor`` the path's rate over it (how much of the machine's arithmetic
+rate the bookkeeping leaves; item 5's goal is out of reach wherever the floor itself is below
+60); ``image_frame_superpixels_per_s`` = the same path's superpixels per second / 1e6;
 ``image_reduce_24mp_s`` and ``image_decode_24mp_s`` the two medians.
 
 The bare decode's time depends on the process's heap: LibRaw mallocs a 48 MB buffer per frame,
@@ -44,6 +50,7 @@ import rawpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import image_session  # noqa: E402  (the 24 MP rig and its poses)
+from _per_pixel_floor import floor_rows  # noqa: E402
 
 REPEATS = 5
 
@@ -81,6 +88,39 @@ def _fresh_decode(path: Path) -> float:
     return float(out.stdout.strip())
 
 
+def _floor_inputs(reducer: object, rec: object, image: object) -> tuple:
+    """What :func:`_floor` reads: the frame's pose parameters and spans (the pose's, as the
+    path's geometry computes them), the row bounds of two halves of equal work, the
+    linearized frame and its white reference."""
+    from acquisition.reduction.pixelbinning import GeometryJob, _balanced
+
+    h, w = image.valid.shape  # type: ignore[attr-defined]
+    calibration, rel = reducer.reference_at(rec.step)  # type: ignore[attr-defined]
+    camera, light = reducer._camera(rec, (h, w))  # type: ignore[attr-defined]
+    table, _ = reducer.new_tables()  # type: ignore[attr-defined]
+    job = GeometryJob(camera, light, reducer.rig.sample, (h, w),  # type: ignore[attr-defined]
+                      reducer.min_cos, table)  # type: ignore[attr-defined]
+    job.cancel()
+    lo, hi = job.spans
+    bounds = [int(b) for b in _balanced(np.maximum(hi - lo, 0), 2)]
+    rgb = np.ascontiguousarray(image.rgb).reshape(h, 3 * w)  # type: ignore[attr-defined]
+    var = np.ascontiguousarray(image.variance).reshape(h, 3 * w)  # type: ignore[attr-defined]
+    return (job.frame, job.spans, bounds, rgb, var,
+            np.ascontiguousarray(calibration, np.float64),
+            np.ascontiguousarray(rel, np.float64).reshape(3))
+
+
+def _floor(inputs: tuple, pool: object) -> int:
+    """The floor's pass (:func:`_per_pixel_floor.floor_rows`) over the frame, its rows in
+    two halves of equal work, one on ``pool``'s thread; returns the candidates."""
+    frame, spans, bounds, *args = inputs
+    accs = [np.zeros((3, 24)), np.zeros((3, 24))]
+    helper = pool.submit(floor_rows, frame, spans, bounds[1], bounds[2],  # type: ignore[attr-defined]
+                         *args, accs[1])
+    return int(floor_rows(frame, spans, bounds[0], bounds[1], *args, accs[0])) + int(
+        helper.result())
+
+
 def bench_image_reduce() -> dict[str, dict[str, float | str]]:
     from acquisition.reduction.fusedbinning import helper_pool
     from acquisition.reduction.image import ImageReducer
@@ -105,7 +145,9 @@ def bench_image_reduce() -> dict[str, dict[str, float | str]]:
 
         image = linearize_with_variance(dng, reducer.rig, reducer.cal)
         _decode(dng), reduce(), per_pixel(image)  # warm the page cache and the kernels
-        decode_s, reduce_s, pixel_s = [], [], []
+        inputs = _floor_inputs(reducer, frame[0], image)
+        candidates = _floor(inputs, helper_pool())  # and compile the floor
+        decode_s, reduce_s, pixel_s, floor_s = [], [], [], []
         for _ in range(REPEATS):
             t0 = time.perf_counter()
             _decode(dng)
@@ -114,15 +156,22 @@ def bench_image_reduce() -> dict[str, dict[str, float | str]]:
             t2 = time.perf_counter()
             per_pixel(image)
             t3 = time.perf_counter()
+            _floor(inputs, helper_pool())
+            t4 = time.perf_counter()
             decode_s.append(t1 - t0)
             reduce_s.append(t2 - t1)
             pixel_s.append(t3 - t2)
+            floor_s.append(t4 - t3)
         superpixels = image.valid.size
         fresh = _fresh_decode(dng)
-    decode, whole, pixel = (statistics.median(x) for x in (decode_s, reduce_s, pixel_s))
+    decode, whole, pixel, floor = (statistics.median(x)
+                                   for x in (decode_s, reduce_s, pixel_s, floor_s))
     return {
         "image_reduce_vs_decode": {"value": decode / whole, "unit": "ratio"},
         "image_per_pixel_msamples_per_s": {"value": samples / pixel / 1e6, "unit": "Msamples/s"},
+        "image_per_pixel_floor_msamples_per_s": {"value": candidates / floor / 1e6,
+                                                 "unit": "Msamples/s"},
+        "image_per_pixel_vs_floor": {"value": floor / pixel, "unit": "ratio"},
         "image_frame_superpixels_per_s": {"value": superpixels / pixel / 1e6, "unit": "M/s"},
         "image_reduce_24mp_s": {"value": whole, "unit": "s"},
         "image_decode_24mp_s": {"value": decode, "unit": "s"},

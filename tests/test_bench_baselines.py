@@ -52,3 +52,36 @@ def test_image_session_poses_keep_one_phase_angle() -> None:
     for ti, tr, dphi in poses:
         cos = _direction(ti, 0.0) @ _direction(tr, dphi)
         assert math.degrees(math.acos(min(cos, 1.0))) == pytest.approx(session.PHASE_DEG, abs=1e-3)
+
+
+def test_per_pixel_floor_does_the_paths_arithmetic() -> None:
+    """bench/_per_pixel_floor.py (image_per_pixel_floor_msamples_per_s) computes what the
+    per-pixel path adds: on a frame with every pixel valid, its candidates are
+    pixel_samples' samples and its 21 column totals those of their values."""
+    from test_imaging_kernels import scene
+
+    from acquisition.reduction.imaging import frame_parameters, pixel_samples
+    from acquisition.reduction.pose_kernels import sample_poses
+    from acquisition.reduction.sample_kernels import column_x
+    from acquisition.reduction.sample_spans import row_spans
+
+    floor = _bench("_per_pixel_floor")
+    cam, light, sample = scene(15, 30.0, 40.0, "sphere")
+    h, w = (int(s) for s in cam.shape)
+    rng = np.random.default_rng(3)
+    rgb = rng.uniform(1.0, 5e4, (h, w, 3)).astype(np.float32)
+    var = rng.uniform(1.0, 1e3, (h, w, 3)).astype(np.float32)
+    cal, rel = rng.uniform(1e-3, 1e3, 3), np.array([0.01, 0.02, 0.03])
+    wi, wo, brdf, variance, _ = pixel_samples(cam, light, sample, rgb, np.ones((h, w), bool),
+                                              var, cal, 0.02)
+    p = frame_parameters(cam, light, sample)
+    acc = np.zeros((3, floor.SUMS))
+    n = floor.floor_rows((p, column_x(p, w), 0.02), row_spans(p, (h, w)), 0, h,
+                         rgb.reshape(h, 3 * w), var.reshape(h, 3 * w), cal, rel, acc)
+    assert n == wi.shape[0] > 2000
+    ti, tr, dp = sample_poses(wi, wo).T
+    columns = [*brdf.T, *(brdf**2).T, *variance.T, *(np.abs(brdf) * rel).T, ti, tr, dp,
+               ti * ti, tr * tr, dp * dp, ti * tr, ti * dp, tr * dp]
+    got = acc.sum(axis=0)
+    for q, column in enumerate(columns):
+        assert got[q] == pytest.approx(math.fsum(column), rel=1e-12), q

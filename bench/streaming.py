@@ -19,7 +19,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 GONIO = Path(sys.executable).with_name("gonio")
-ROUNDS = 2
+ROUNDS = 4
 
 
 def _capture(out: Path, stream: bool) -> tuple[float, float]:

@@ -248,3 +248,17 @@ def test_a_script_without_a_main_guard_streams(tmp_path: Path) -> None:
     assert done.stderr == ""  # e.g. no "subprocess … is still running": the worker was reaped
     assert done.stdout.count("STREAMED") == 1 and "STREAMED 0 " in done.stdout
     assert (tmp_path / "s" / "brdf.h5").is_file()
+
+
+def test_the_streaming_worker_loads_no_capture_stack() -> None:
+    """The worker process beside a capture (WORKER_CODE, then follow_session's imports) loads
+    the reduction only: not the capture, rig devices, servo simulators or scipy.optimize,
+    whose import is CPU (~1 s here) taken from the capture it runs beside."""
+    code = ("import sys; from acquisition.api.streaming import follow_session\n"
+            "try:\n    follow_session('/nonexistent/session')\nexcept Exception:\n    pass\n"
+            "import acquisition.lightstage.reduce\n"
+            "stack = {'acquisition.api.sessions', 'acquisition.devices.rig', "
+            "'acquisition.lightstage.capture', 'simulators.dynamixel', 'scipy.optimize'}\n"
+            "print(sorted(stack & set(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"

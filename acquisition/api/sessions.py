@@ -25,7 +25,7 @@ from acquisition.geometry.kinematics import Pose
 from acquisition.planning.planner import Planner, Sweep
 from acquisition.planning.timing import TimeModel
 from acquisition.reduction import CHECKPOINT_EVERY
-from acquisition.reduction.checkpoint import checkpoint_path
+from acquisition.reduction.checkpoint import checkpoint_path, write_table
 from acquisition.reduction.point import Reduction, reduce_session
 from acquisition.session.alignment import alignment_of, bundle_at
 from acquisition.session.capture import CaptureEngine
@@ -446,12 +446,3 @@ def reduce(
     return result
 
 
-def write_table(result: Reduction, out: str | Path, session: str | Path, *,
-                keep_checkpoint: bool = False) -> None:
-    """Save a reduction's table (and an image-based session's MERL table in it) at ``out``
-    atomically, then delete the checkpoint beside it: the table supersedes it (unless
-    ``keep_checkpoint``: the table of a capture that will be resumed)."""
-    result.table.save_h5(out, inputs=(session,), merl=getattr(result, "merl", None))
-    if not keep_checkpoint:
-        with suppress(FileNotFoundError):
-            checkpoint_path(out).unlink()

@@ -34,12 +34,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from acquisition.reduction import CHECKPOINT_EVERY
-from acquisition.reduction.checkpoint import checkpoint_path
+from acquisition.reduction.checkpoint import checkpoint_path, write_table
 from acquisition.reduction.point import Reduction
 from acquisition.reduction.stream import ImageStream, JournalView, PointStream, follow, open_stream
 from acquisition.session.folder import SessionFolder
 from acquisition.session.runlock import capture_running
-from acquisition.session.status import live_table_path
+from acquisition.session.status import DEFAULT_TABLE, live_table_path
 from acquisition.tables.isotropic import WHAT as TABLE_WHAT
 from acquisition.tables.isotropic import is_table_file
 from drivers.errors import GonioError, SessionError
@@ -107,7 +107,6 @@ def follow_session(
     capture, even if another capture of the session has begun since.
     A light-stage session is reduced once its capture has ended.
     """
-    from acquisition.api.sessions import DEFAULT_TABLE, write_table
     from acquisition.lightstage.reduce import is_lightstage_session, reduce_lightstage_session
 
     folder = SessionFolder(session)

@@ -34,12 +34,11 @@ from acquisition.session.folder import SessionFolder, create_session
 from acquisition.session.journal import StepRecord
 from acquisition.session.observers import Observer, ProgressObserver
 from acquisition.session.runlock import capture_lock
+from acquisition.session.status import LIGHTSTAGE_META as META_KEY
 from acquisition.session.status import PLANNED_STEPS_META
 from acquisition.session.steps import Step
 from acquisition.simworld.materials import DEFAULT_MATERIAL, parse_material
 from drivers.errors import SessionError
-
-META_KEY = "lightstage"
 
 DEFAULT_PLAN = """\
 # Light-stage session settings (written by gonio lightstage capture): table bins and exposure.

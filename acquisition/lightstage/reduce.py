@@ -38,7 +38,6 @@ import numpy as np
 
 from acquisition.config.rig import RigConfig
 from acquisition.formats.merl import write_merl
-from acquisition.lightstage.capture import META_KEY
 from acquisition.reduction.badframes import FrameCheck
 from acquisition.reduction.image import (
     DEFAULT_MIN_COS,
@@ -58,6 +57,7 @@ from acquisition.reduction.point import (
 )
 from acquisition.session.folder import SessionFolder
 from acquisition.session.journal import StepRecord
+from acquisition.session.status import LIGHTSTAGE_META as META_KEY
 from acquisition.session.steps import DARK, POSE, REFERENCE
 from acquisition.tables import IsotropicTable, MerlTable
 from calibration.linearize import LinearImage, linearize

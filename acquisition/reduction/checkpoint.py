@@ -22,8 +22,9 @@ import hashlib
 import json
 import os
 from collections.abc import Iterable, Mapping
+from contextlib import suppress
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from acquisition.reduction import CHECKPOINT_EVERY
 from acquisition.session.folder import SessionFolder
 from acquisition.tables.partial import ReductionPartial, TablePartial, load_partial, save_partial
 from calibration.bundle import CalibrationBundle
+
+if TYPE_CHECKING:
+    from acquisition.reduction.point import Reduction
 
 SUFFIX = ".checkpoint.h5"
 
@@ -116,3 +120,14 @@ class Checkpointed:
         self._since = 0
         if self.path is not None:
             save_partial(self.path, self.partial(), self.inputs)
+
+
+def write_table(result: Reduction, out: str | Path, session: str | Path, *,
+                keep_checkpoint: bool = False) -> None:
+    """Save a reduction's table (and an image-based session's MERL table in it) at ``out``
+    atomically, then delete the checkpoint beside it: the table supersedes it (unless
+    ``keep_checkpoint``: the table of a capture that will be resumed)."""
+    result.table.save_h5(out, inputs=(session,), merl=getattr(result, "merl", None))
+    if not keep_checkpoint:
+        with suppress(FileNotFoundError):
+            checkpoint_path(out).unlink()

@@ -38,6 +38,9 @@ PLANNED_STEPS_META = "planned_steps"
 how many journal steps its whole sequence has."""
 LINK_STATS_META = "link_stats"
 """Journal meta: per run, ``{axis: {"requests", "retries", "resends"}}`` of its servo bus."""
+LIGHTSTAGE_META = "lightstage"
+"""Journal meta of a light-stage session: its sequences, white and dark frames (what
+:mod:`acquisition.lightstage.capture` journals; a reduction tells the session's kind by it)."""
 
 
 def summed_link_stats(runs: list[dict[str, dict[str, int]]]) -> dict[str, dict[str, int]]:

@@ -5,5 +5,5 @@ zero offsets, backlash, position noise), the sensor, the reference materials and
 materials from files (:mod:`simulators.measured`: MERL and RGL ``.bsdf``, read and evaluated
 with code of their own).
 
-May import: ``drivers.errors``, ``drivers.camera``.
+May import: ``drivers.errors``, ``drivers.camera``, ``drivers.numba_cache``.
 """

@@ -18,8 +18,13 @@ import math
 import numba
 import numpy as np
 
+import simulators.counter_rng as counter_rng
+import simulators.ziggurat as ziggurat
+from drivers.numba_cache import drop_stale_cache
 from simulators.counter_rng import GAMMA, frame_key, mix, uniform
 from simulators.ziggurat import normal
+
+drop_stale_cache(__file__, (counter_rng.__file__, ziggurat.__file__))  # compiled in
 
 __all__ = ["EXACT_POISSON_BELOW_E", "expose_mosaic", "frame_key"]
 

@@ -19,7 +19,11 @@ import math
 import numba
 import numpy as np
 
+import simulators.counter_rng as counter_rng
+from drivers.numba_cache import drop_stale_cache
 from simulators.counter_rng import draw_bits, uniform
+
+drop_stale_cache(__file__, (counter_rng.__file__,))  # its draws are compiled in
 
 LAYERS = 256
 R = 3.6541528853610088

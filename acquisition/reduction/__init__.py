@@ -4,7 +4,7 @@ sample was taken, its angular uncertainty, the live estimate, and reduction on a
 (``distributed``: the optional extra ``gonio[distributed]``, imported only when asked for).
 
 May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.session``,
-``acquisition.tables``, ``acquisition.formats``, ``acquisition.numba_cache``, ``calibration``,
+``acquisition.tables``, ``acquisition.formats``, ``drivers.numba_cache``, ``calibration``,
 ``drivers.errors``.
 """
 

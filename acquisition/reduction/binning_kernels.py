@@ -24,7 +24,7 @@ from pathlib import Path
 
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels: libm only
 
-from acquisition.numba_cache import drop_stale_cache  # noqa: E402
+from drivers.numba_cache import drop_stale_cache  # noqa: E402
 
 _HERE = Path(__file__).resolve()
 _TABLES = _HERE.parents[1] / "tables"

@@ -24,7 +24,7 @@ from pathlib import Path
 
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels
 
-from acquisition.numba_cache import drop_stale_cache  # noqa: E402
+from drivers.numba_cache import drop_stale_cache  # noqa: E402
 
 _TABLES = Path(__file__).resolve().parents[1] / "tables"
 drop_stale_cache(__file__, (_TABLES / "portable_trig.py", _TABLES / "kernels.py"))

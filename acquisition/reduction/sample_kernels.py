@@ -30,6 +30,11 @@ import os
 
 os.environ["NUMBA_DISABLE_INTEL_SVML"] = "1"  # as acquisition.tables.kernels
 
+from drivers.numba_cache import drop_stale_cache  # noqa: E402
+
+# the row functions compile in imaging_kernels' arithmetic
+drop_stale_cache(__file__, (os.path.join(os.path.dirname(__file__), "imaging_kernels.py"),))
+
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 

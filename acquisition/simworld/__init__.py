@@ -7,6 +7,6 @@ Measured materials (``merl:``, ``bsdf:``) are read and evaluated by
 :mod:`simulators.measured`, not by ``acquisition.formats`` (whose readers and exporters it
 judges through round trips).
 
-May import: ``acquisition.geometry``, ``acquisition.config``, ``acquisition.numba_cache``,
+May import: ``acquisition.geometry``, ``acquisition.config``, ``drivers.numba_cache``,
 ``simulators``, ``drivers``.
 """

@@ -32,8 +32,8 @@ import numpy as np
 
 import simulators.material_kernels as material_kernels
 from acquisition.config.rig import RigConfig
-from acquisition.numba_cache import drop_stale_cache
 from acquisition.simworld.optics import camera_axes, intrinsics_of, pointed_axes, target_surface
+from drivers.numba_cache import drop_stale_cache
 from simulators.exposure import PARALLEL_MIN_PIXELS
 
 drop_stale_cache(__file__, (material_kernels.__file__,))  # numba sees this file only

@@ -2,7 +2,7 @@
 with exact (fixed-point) per-bin sums, binning kernels, partial tables that merge in any
 grouping, HDF5 files.
 
-May import: ``acquisition.geometry``, ``acquisition.numba_cache``, ``drivers.errors``,
+May import: ``acquisition.geometry``, ``drivers.numba_cache``, ``drivers.errors``,
 ``drivers.storage``.
 """
 

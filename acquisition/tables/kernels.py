@@ -40,9 +40,9 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from acquisition.geometry.halfdiff import DEG2RAD, PHI_D_BINS, THETA_D_BINS, THETA_H_BINS  # noqa: E402
-from acquisition.numba_cache import drop_stale_cache  # noqa: E402
 from acquisition.tables import portable_trig  # noqa: E402
 from acquisition.tables.accumulator import DROP_NAN, DROP_OUT_OF_RANGE  # noqa: E402
+from drivers.numba_cache import drop_stale_cache  # noqa: E402
 
 drop_stale_cache(__file__, (portable_trig.__file__,))  # the MERL kernels compile its acos in
 

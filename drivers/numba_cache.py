@@ -13,12 +13,19 @@ import hashlib
 from collections.abc import Iterable
 from pathlib import Path
 
+DECLARED: dict[Path, frozenset[Path]] = {}
+"""The dependencies each module declared, by module file (tests/test_numba_cache.py checks that
+every cached kernel module declares the files whose compiled functions and constants it
+uses)."""
+
 
 def drop_stale_cache(module_file: str | Path, dependencies: Iterable[str | Path]) -> None:
     """Delete ``module_file``'s cached machine code (``__pycache__/<stem>.*.nbi|nbc``) when a
     dependency's source changed since it was compiled."""
     here = Path(module_file).resolve()
-    digest = hashlib.sha256(b"".join(Path(p).read_bytes() for p in dependencies)).hexdigest()
+    dependencies = [Path(p).resolve() for p in dependencies]
+    DECLARED[here] = frozenset(dependencies)
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in dependencies)).hexdigest()
     cache = here.parent / "__pycache__"
     stamp = cache / f"{here.stem}.deps"
     try:

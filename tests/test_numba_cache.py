@@ -8,6 +8,9 @@ changes."""
 from __future__ import annotations
 
 import importlib
+import os
+import sys
+import time
 import types
 from pathlib import Path
 
@@ -74,7 +77,8 @@ def test_every_cached_kernel_module_declares_the_kernels_it_compiles_in() -> Non
 
 
 def test_a_changed_dependency_drops_the_cache_and_an_unchanged_one_keeps_it(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(numba_cache, "LOADED_AT", float("inf"))  # edited before a process ran
     module, dep = tmp_path / "kern.py", tmp_path / "dep.py"
     module.write_text("x = 1\n")
     dep.write_text("y = 1\n")
@@ -93,6 +97,35 @@ def test_a_changed_dependency_drops_the_cache_and_an_unchanged_one_keeps_it(
     numba_cache.drop_stale_cache(module, (dep,))
     assert not compiled.exists()  # the dependency changed: dropped
     assert numba_cache.DECLARED[module.resolve()] == {dep.resolve()}
+
+
+def test_a_dependency_edited_while_the_process_runs_leaves_an_untrusted_cache(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Its old code may be in memory already: what this process caches is dropped by the
+    next one."""
+    module, dep = tmp_path / "kern.py", tmp_path / "dep.py"
+    module.write_text("x = 1\n")
+    dep.write_text("y = 1\n")
+    monkeypatch.setattr(numba_cache, "LOADED_AT", dep.stat().st_mtime - 10.0)  # edited since
+    numba_cache.drop_stale_cache(module, (dep,))
+    stamp = tmp_path / "__pycache__" / "kern.deps"
+    assert stamp.read_text() != numba_cache.UNTRUSTED  # not imported: read from the file
+    monkeypatch.setitem(sys.modules, "gonio_test_dep", types.SimpleNamespace(
+        __file__=str(dep.resolve())))  # imported before the edit: its old code in memory
+    numba_cache.drop_stale_cache(module, (dep,))
+    assert stamp.read_text() == numba_cache.UNTRUSTED
+    compiled = tmp_path / "__pycache__" / "kern.f-1.py311.nbi"
+    compiled.touch()  # what this process compiles, perhaps from the old code
+    monkeypatch.setattr(numba_cache, "LOADED_AT", dep.stat().st_mtime + 10.0)  # the next one
+    numba_cache.drop_stale_cache(module, (dep,))
+    assert not compiled.exists() and stamp.read_text() != numba_cache.UNTRUSTED
+    compiled.touch()
+    numba_cache.drop_stale_cache(module, (dep,))
+    assert compiled.exists()  # now trusted: kept
+    future = time.time() + 3600.0  # a file dated ahead of this clock: skew, not an edit
+    os.utime(dep, (future, future))
+    numba_cache.drop_stale_cache(module, (dep,))
+    assert compiled.exists() and stamp.read_text() != numba_cache.UNTRUSTED
 
 
 @pytest.mark.parametrize("name", ["acquisition.reduction.sample_kernels", "simulators.ziggurat",

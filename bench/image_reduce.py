@@ -89,23 +89,24 @@ def _fresh_decode(path: Path) -> float:
 
 
 def _floor_inputs(reducer: object, rec: object, image: object) -> tuple:
-    """What :func:`_floor` reads: the frame's pose parameters and spans (the pose's, as the
-    path's geometry computes them), the row bounds of two halves of equal work, the
-    linearized frame and its white reference."""
-    from acquisition.reduction.pixelbinning import GeometryJob, _balanced
+    """What :func:`_floor` reads: the frame's pose parameters, the columns' x and the
+    minimum cosine, the rows' spans (as the path's GeometryJob computes them), the row bounds
+    of two halves of equal work, the linearized frame and its white reference."""
+    from acquisition.reduction.imaging import _balanced, frame_parameters
+    from acquisition.reduction.sample_kernels import column_x
+    from acquisition.reduction.sample_spans import row_spans
 
     h, w = image.valid.shape  # type: ignore[attr-defined]
     calibration, rel = reducer.reference_at(rec.step)  # type: ignore[attr-defined]
     camera, light = reducer._camera(rec, (h, w))  # type: ignore[attr-defined]
-    table, _ = reducer.new_tables()  # type: ignore[attr-defined]
-    job = GeometryJob(camera, light, reducer.rig.sample, (h, w),  # type: ignore[attr-defined]
-                      reducer.min_cos, table)  # type: ignore[attr-defined]
-    job.cancel()
-    lo, hi = job.spans
-    bounds = [int(b) for b in _balanced(np.maximum(hi - lo, 0), 2)]
+    p = frame_parameters(camera, light, reducer.rig.sample)  # type: ignore[attr-defined]
+    spans = row_spans(p, (h, w))
+    width = np.maximum(spans[1] - spans[0], 0)
+    bounds = [int(b) for b in _balanced(width, 0, width.size, 2)]
     rgb = np.ascontiguousarray(image.rgb).reshape(h, 3 * w)  # type: ignore[attr-defined]
     var = np.ascontiguousarray(image.variance).reshape(h, 3 * w)  # type: ignore[attr-defined]
-    return (job.frame, job.spans, bounds, rgb, var,
+    frame = (p, column_x(p, w), float(reducer.min_cos))  # type: ignore[attr-defined]
+    return (frame, spans, bounds, rgb, var,
             np.ascontiguousarray(calibration, np.float64),
             np.ascontiguousarray(rel, np.float64).reshape(3))
 

@@ -27,8 +27,7 @@ UNTRUSTED = "a dependency changed while the process that compiled this cache ran
 
 DECLARED: dict[Path, frozenset[Path]] = {}
 """The dependencies each module declared, by module file (tests/test_numba_cache.py checks that
-every cached kernel module declares the files whose compiled functions and constants it
-uses)."""
+every cached kernel module declares the files whose compiled functions it holds)."""
 
 
 def drop_stale_cache(module_file: str | Path, dependencies: Iterable[str | Path]) -> None:
